@@ -1,0 +1,611 @@
+"""Compiled integrator of the jumping robot on a granular bed with memory (private).
+
+An event-driven, adaptive Dormand-Prince 5(4) integrator (Hairer, Norsett & Wanner,
+*Solving ODEs I*, II.5) compiled with numba. The right-hand side is smooth between
+events, so every non-smooth point of physics-model.md is an event the integrator stops on:
+
+* actuator segment boundaries (``alpha''`` jumps): steps are clipped to land on them;
+* bed regime changes: advancing -> contact (the foot stops advancing, ``z' = 0``),
+  contact -> advancing (the foot reaches ``z_max``), contact -> free (the unloading line
+  reaches zero force), free -> contact;
+* the jump apex (``x_f' = 0`` inside the height window, no restart) and touchdown.
+
+Events are located on the step's cubic Hermite interpolant and then refined with real
+Runge-Kutta steps from the step start (safeguarded Newton in a bracket), so the state after
+an event is a genuine 5th-order solution. The integrator never raises: each jump returns a
+status code (``STATUS_*``), and its height is NaN unless the status is ``STATUS_OK``.
+
+Input layout: one float row per jump (``ROW_*`` indices: robot, phi, then the force-term
+parameters in ``forces.PARAMETER_NAMES`` order); a command table per command (see
+``commands.CommandProgram.as_table``); an options vector (``OPT_*``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from .forces import PARAMETER_NAMES
+
+# ----------------------------------------------------------------------------------------
+# layouts
+ROBOT_FIELDS = (
+    "m_motor",
+    "m_rod",
+    "m_foot",
+    "k_spring",
+    "c_spring",
+    "foot_radius",
+    "grain_density",
+)
+ROW_M_MOTOR, ROW_M_ROD, ROW_M_FOOT, ROW_K_SPRING, ROW_C_SPRING, ROW_RADIUS, ROW_RHO = range(7)
+ROW_PHI = 7
+ROW_FORCE0 = 8
+ROW_SIZE = ROW_FORCE0 + len(PARAMETER_NAMES)
+ROW_FIELDS = (*ROBOT_FIELDS, "phi", *PARAMETER_NAMES)
+
+_P_K = ROW_FORCE0 + PARAMETER_NAMES.index("k")
+_P_CD = ROW_FORCE0 + PARAMETER_NAMES.index("c_d")
+_P_KAPPA = ROW_FORCE0 + PARAMETER_NAMES.index("kappa")
+_P_R = ROW_FORCE0 + PARAMETER_NAMES.index("r_unload")
+_P_K2 = ROW_FORCE0 + PARAMETER_NAMES.index("k2")
+_P_B = ROW_FORCE0 + PARAMETER_NAMES.index("b")
+
+OPT_RTOL, OPT_ATOL_X, OPT_ATOL_V, OPT_HMAX, OPT_MAX_STEPS, OPT_T_AFTER = range(6)
+OPT_SIZE = 6
+
+STATUS_OK = 0
+STATUS_NONFINITE = 1
+STATUS_STEP_LIMIT = 2
+STATUS_STEP_UNDERFLOW = 3
+STATUS_BAD_INPUT = 4
+STATUS_NAMES = ("ok", "failed:non-finite", "failed:step-limit", "failed:step-underflow",
+                "failed:bad-input")  # fmt: skip
+
+MODE_ADVANCING = 0
+MODE_CONTACT = 1  # not advancing, on the unloading line (F_g > 0)
+MODE_FREE = 2  # not advancing, F_g = 0
+MODE_NAMES = ("advancing", "contact", "free")
+
+START_TOUCHING = 0
+START_SETTLED = 1
+
+# trajectory record columns
+REC_FIELDS = ("t", "x_rod", "x_foot", "v_rod", "v_foot", "z_max", "ground_force",
+              "added_mass", "mode", "alpha")  # fmt: skip
+REC_SIZE = len(REC_FIELDS)
+
+G = 9.81
+CONE_THETA = math.pi / 3.0  # 60 deg
+CONE_TAN = math.tan(CONE_THETA)
+CONE_MU = 2.0
+
+# context vector (per jump, derived from the row)
+_C_M, _C_MMOT, _C_MF, _C_KS, _C_CS = 0, 1, 2, 3, 4
+_C_K, _C_CD, _C_AM, _C_R, _C_K2, _C_B = 5, 6, 7, 8, 9, 10
+_C_RAD, _C_HFULL, _C_OMEGA, _C_SEGCOEF, _C_SEGT0, _C_SEGOFF = 11, 12, 13, 14, 15, 16
+_C_ZMAX, _C_ZENTRY, _C_ZFREE, _C_FSMAX = 17, 18, 19, 20
+_C_SIZE = 21
+
+# events (each is g(y) crossing from <= 0 to > 0)
+_EV_NONE = -1
+_EV_ADV_EXIT = 0  # g = v_f                    (z' from >= 0 to < 0)
+_EV_REENTER = 1  # g = z - z_max
+_EV_RELEASE = 2  # g = -F_g on the unloading line
+_EV_TOUCH = 3  # g = z - z_free
+_EV_APEX = 4  # g = -v_f
+
+# Dormand-Prince 5(4) tableau
+_A21 = 1.0 / 5.0
+_A31, _A32 = 3.0 / 40.0, 9.0 / 40.0
+_A41, _A42, _A43 = 44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0
+_A51, _A52, _A53, _A54 = 19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0
+_A61, _A62, _A63 = 9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0
+_A64, _A65 = 49.0 / 176.0, -5103.0 / 18656.0
+_B1, _B3, _B4, _B5, _B6 = 35.0 / 384.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0
+_E1, _E3, _E4 = 71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0
+_E5, _E6, _E7 = -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0
+_C2, _C3, _C4, _C5 = 0.2, 0.3, 0.8, 8.0 / 9.0
+
+
+# ----------------------------------------------------------------------------------------
+# GROUND MODEL: the force-term library (physics-model.md section 3). New terms go here.
+@njit(cache=True)
+def static_strength(z, k, k2):
+    """F_static(z) = k z + k2 z^2 [N]: the yield force of the bed at depth z [m]."""
+    return k * z + k2 * z * z
+
+
+@njit(cache=True)
+def cone_volume(h, radius):
+    """Volume [m^3] of the jammed cone of height h [m] under a foot of given radius."""
+    return math.pi * h * (radius * radius - radius * h / CONE_TAN + h * h / (3.0 * CONE_TAN**2))
+
+
+@njit(cache=True)
+def _ground(z, zd, mode, c):
+    """Ground force F_g [N], added mass m_a [kg] and momentum flux [N] (up positive)."""
+    if mode == MODE_ADVANCING:
+        fg = c[_C_K] * z + c[_C_K2] * z * z + c[_C_CD] * zd * zd + c[_C_B] * zd
+        am = c[_C_AM]
+        if am > 0.0:
+            h = CONE_MU * (z - c[_C_ZENTRY])
+            radius = c[_C_RAD]
+            if h < c[_C_HFULL]:
+                q = radius - h / CONE_TAN
+                return fg, am * cone_volume(h, radius), am * CONE_MU * math.pi * q * q * zd * zd
+            return fg, am * cone_volume(c[_C_HFULL], radius), 0.0
+        return fg, 0.0, 0.0
+    if mode == MODE_CONTACT:
+        return c[_C_FSMAX] - c[_C_R] * c[_C_K] * (c[_C_ZMAX] - z), 0.0, 0.0
+    return 0.0, 0.0, 0.0
+
+
+# ----------------------------------------------------------------------------------------
+# equations of motion (physics-model.md section 2); state (x_rod, x_foot, v_rod, v_foot)
+@njit(cache=True)
+def _accel(t, xr, xf, vr, vf, mode, c):
+    """Accelerations (rod, foot) [m/s^2]."""
+    coef = c[_C_SEGCOEF]
+    alpha_dd = 0.0
+    if coef != 0.0:  # the actuator is idle (held) for most of a jump
+        w = c[_C_OMEGA]
+        alpha_dd = -coef * w * w * math.cos(w * (t - c[_C_SEGT0]))
+    fs = c[_C_KS] * (xf - xr) + c[_C_CS] * (vf - vr)
+    fg, ma, flux = _ground(-xf, -vf, mode, c)
+    return (fs - c[_C_MMOT] * alpha_dd) / c[_C_M] - G, (fg + flux - fs) / (c[_C_MF] + ma) - G
+
+
+@njit(cache=True)
+def _dopri_step(t, y, f, h, mode, c, tol):
+    """One Dormand-Prince 5(4) step of size ``h`` from state ``y`` with ``f = dy/dt``.
+
+    ``y = (x_rod, x_foot, v_rod, v_foot)``, ``f = (a_rod, a_foot)`` and ``tol = (rtol,
+    atol_x, atol_v)``. Returns ``(y_new, f_new, err)`` where ``f_new`` is f at the new state
+    (first-same-as-last) and ``err`` the RMS error norm scaled by the tolerances.
+    """
+    x1, x2, v1, v2 = y
+    a1, a2 = f
+    # stage 2
+    p1 = x1 + h * _A21 * v1
+    p2 = x2 + h * _A21 * v2
+    q1 = v1 + h * _A21 * a1
+    q2 = v2 + h * _A21 * a2
+    b1, b2 = _accel(t + _C2 * h, p1, p2, q1, q2, mode, c)
+    u1, u2 = q1, q2
+    # stage 3
+    p1 = x1 + h * (_A31 * v1 + _A32 * u1)
+    p2 = x2 + h * (_A31 * v2 + _A32 * u2)
+    q1 = v1 + h * (_A31 * a1 + _A32 * b1)
+    q2 = v2 + h * (_A31 * a2 + _A32 * b2)
+    c1, c2 = _accel(t + _C3 * h, p1, p2, q1, q2, mode, c)
+    w1, w2 = q1, q2
+    # stage 4
+    p1 = x1 + h * (_A41 * v1 + _A42 * u1 + _A43 * w1)
+    p2 = x2 + h * (_A41 * v2 + _A42 * u2 + _A43 * w2)
+    q1 = v1 + h * (_A41 * a1 + _A42 * b1 + _A43 * c1)
+    q2 = v2 + h * (_A41 * a2 + _A42 * b2 + _A43 * c2)
+    d1, d2 = _accel(t + _C4 * h, p1, p2, q1, q2, mode, c)
+    r1, r2 = q1, q2
+    # stage 5
+    p1 = x1 + h * (_A51 * v1 + _A52 * u1 + _A53 * w1 + _A54 * r1)
+    p2 = x2 + h * (_A51 * v2 + _A52 * u2 + _A53 * w2 + _A54 * r2)
+    q1 = v1 + h * (_A51 * a1 + _A52 * b1 + _A53 * c1 + _A54 * d1)
+    q2 = v2 + h * (_A51 * a2 + _A52 * b2 + _A53 * c2 + _A54 * d2)
+    e1, e2 = _accel(t + _C5 * h, p1, p2, q1, q2, mode, c)
+    s1, s2 = q1, q2
+    # stage 6
+    p1 = x1 + h * (_A61 * v1 + _A62 * u1 + _A63 * w1 + _A64 * r1 + _A65 * s1)
+    p2 = x2 + h * (_A61 * v2 + _A62 * u2 + _A63 * w2 + _A64 * r2 + _A65 * s2)
+    q1 = v1 + h * (_A61 * a1 + _A62 * b1 + _A63 * c1 + _A64 * d1 + _A65 * e1)
+    q2 = v2 + h * (_A61 * a2 + _A62 * b2 + _A63 * c2 + _A64 * d2 + _A65 * e2)
+    g1, g2 = _accel(t + h, p1, p2, q1, q2, mode, c)
+    o1, o2 = q1, q2
+    # 5th-order solution and FSAL stage
+    nx1 = x1 + h * (_B1 * v1 + _B3 * w1 + _B4 * r1 + _B5 * s1 + _B6 * o1)
+    nx2 = x2 + h * (_B1 * v2 + _B3 * w2 + _B4 * r2 + _B5 * s2 + _B6 * o2)
+    nv1 = v1 + h * (_B1 * a1 + _B3 * c1 + _B4 * d1 + _B5 * e1 + _B6 * g1)
+    nv2 = v2 + h * (_B1 * a2 + _B3 * c2 + _B4 * d2 + _B5 * e2 + _B6 * g2)
+    n1, n2 = _accel(t + h, nx1, nx2, nv1, nv2, mode, c)
+    # embedded error estimate
+    ex1 = h * (_E1 * v1 + _E3 * w1 + _E4 * r1 + _E5 * s1 + _E6 * o1 + _E7 * nv1)
+    ex2 = h * (_E1 * v2 + _E3 * w2 + _E4 * r2 + _E5 * s2 + _E6 * o2 + _E7 * nv2)
+    ev1 = h * (_E1 * a1 + _E3 * c1 + _E4 * d1 + _E5 * e1 + _E6 * g1 + _E7 * n1)
+    ev2 = h * (_E1 * a2 + _E3 * c2 + _E4 * d2 + _E5 * e2 + _E6 * g2 + _E7 * n2)
+    rtol, atol_x, atol_v = tol
+    acc = (ex1 / (atol_x + rtol * max(abs(x1), abs(nx1)))) ** 2
+    acc += (ex2 / (atol_x + rtol * max(abs(x2), abs(nx2)))) ** 2
+    acc += (ev1 / (atol_v + rtol * max(abs(v1), abs(nv1)))) ** 2
+    acc += (ev2 / (atol_v + rtol * max(abs(v2), abs(nv2)))) ** 2
+    return (nx1, nx2, nv1, nv2), (n1, n2), math.sqrt(0.25 * acc)
+
+
+# ----------------------------------------------------------------------------------------
+# events
+@njit(cache=True)
+def _g(kind, y, c):
+    """Event function; the event is g crossing from <= 0 to > 0."""
+    if kind == _EV_ADV_EXIT:
+        return y[3]
+    if kind == _EV_REENTER:
+        return -y[1] - c[_C_ZMAX]
+    if kind == _EV_RELEASE:
+        return -(c[_C_FSMAX] - c[_C_R] * c[_C_K] * (c[_C_ZMAX] + y[1]))
+    if kind == _EV_TOUCH:
+        return -y[1] - c[_C_ZFREE]
+    return -y[3]  # _EV_APEX
+
+
+@njit(cache=True)
+def _gdot(kind, y, f, c):
+    """Time derivative of the event function."""
+    if kind == _EV_ADV_EXIT:
+        return f[1]
+    if kind == _EV_REENTER or kind == _EV_TOUCH:
+        return -y[3]
+    if kind == _EV_RELEASE:
+        return c[_C_R] * c[_C_K] * y[3]
+    return -f[1]
+
+
+@njit(cache=True)
+def _gtol(kind, c):
+    """Absolute tolerance on g at an event (positions 1e-13 m, velocities 1e-11 m/s)."""
+    if kind == _EV_REENTER or kind == _EV_TOUCH:
+        return 1e-13
+    if kind == _EV_RELEASE:
+        return 1e-13 * c[_C_R] * c[_C_K]
+    return 1e-11
+
+
+@njit(cache=True)
+def _hermite(th, g0, g1, d0, d1):
+    """Cubic Hermite interpolant on [0, 1] (d0, d1: end slopes times the step)."""
+    th2 = th * th
+    th3 = th2 * th
+    return (
+        (2 * th3 - 3 * th2 + 1) * g0
+        + (th3 - 2 * th2 + th) * d0
+        + (-2 * th3 + 3 * th2) * g1
+        + (th3 - th2) * d1
+    )
+
+
+@njit(cache=True)
+def _glance(kind, t, y0, f0, y1, f1, h, mode, c, tol):
+    """Detect a crossing that comes back within the step (g0 <= 0, g1 <= 0).
+
+    Returns ``(s, y, f, g)`` with ``g > 0`` at ``t + s`` if the interpolant of g rises
+    above zero inside the step, else ``s = -1``.
+    """
+    g0 = _g(kind, y0, c)
+    g1 = _g(kind, y1, c)
+    d0 = h * _gdot(kind, y0, f0, c)
+    d1 = h * _gdot(kind, y1, f1, c)
+    if not (d0 > 0.0 and d1 < 0.0):
+        return -1.0, y1, f1, g1
+    # stationary point of the cubic: p'(th) = A th^2 + B th + C = 0
+    qa = 6 * g0 + 3 * d0 - 6 * g1 + 3 * d1
+    qb = -6 * g0 - 4 * d0 + 6 * g1 - 2 * d1
+    qc = d0
+    if abs(qa) < 1e-300:
+        th = -qc / qb
+    else:
+        disc = qb * qb - 4 * qa * qc
+        if disc < 0.0:
+            return -1.0, y1, f1, g1
+        sq = math.sqrt(disc)
+        r1 = (-qb - sq) / (2 * qa)
+        r2 = (-qb + sq) / (2 * qa)
+        th = r1 if 0.0 < r1 < 1.0 else r2
+    if not (0.0 < th < 1.0) or _hermite(th, g0, g1, d0, d1) <= -_gtol(kind, c):
+        return -1.0, y1, f1, g1
+    s = th * h
+    ym, fm, _ = _dopri_step(t, y0, f0, s, mode, c, tol)
+    gm = _g(kind, ym, c)
+    if gm > 0.0:
+        return s, ym, fm, gm
+    return -1.0, y1, f1, g1
+
+
+@njit(cache=True)
+def _locate(kind, t, y0, f0, y1, f1, h, mode, c, tol):
+    """Locate the first crossing of event ``kind`` in a step of size ``h``.
+
+    Requires ``g(y0) <= 0 < g(y1)``. Returns ``(s, y, f)`` with ``s`` in (0, h] just past
+    the root (``g > 0`` there), the state there and its derivative.
+    """
+    g0 = _g(kind, y0, c)
+    g1 = _g(kind, y1, c)
+    d0 = h * _gdot(kind, y0, f0, c)
+    d1 = h * _gdot(kind, y1, f1, c)
+    # root of the cubic Hermite interpolant of g (g is affine in y): Illinois method
+    a, fa, b, fb = 0.0, g0, 1.0, g1
+    side = 0
+    for _ in range(60):
+        th = (a * fb - b * fa) / (fb - fa)
+        p = _hermite(th, g0, g1, d0, d1)
+        if p > 0.0:
+            b, fb = th, p
+            if side == -1:
+                fa *= 0.5
+            side = -1
+        else:
+            a, fa = th, p
+            if side == 1:
+                fb *= 0.5
+            side = 1
+        if b - a < 1e-13:
+            break
+    # refine with real Runge-Kutta steps from the step start: safeguarded Newton
+    lo, hi = 0.0, h
+    y_hi, f_hi = y1, f1
+    s = b * h
+    gtol = _gtol(kind, c)
+    for _ in range(80):
+        if not (lo < s < hi):
+            s = 0.5 * (lo + hi)
+        ys, fs, _ = _dopri_step(t, y0, f0, s, mode, c, tol)
+        gs = _g(kind, ys, c)
+        gd = _gdot(kind, ys, fs, c)
+        if gs > 0.0:
+            hi, y_hi, f_hi = s, ys, fs
+            if gs < gtol or hi - lo < 1e-12:
+                break
+            s = s - gs / gd if gd > 0.0 else 0.5 * (lo + hi)
+        else:
+            lo = s
+            if hi - lo < 1e-12:
+                break
+            # aim just beyond the Newton root so that the next trial lands past it
+            s = s - gs / gd + 1e-12 if gd > 0.0 else 0.5 * (lo + hi)
+    return hi, y_hi, f_hi
+
+
+# ----------------------------------------------------------------------------------------
+# one jump
+@njit(cache=True)
+def _valid_row(row):
+    for i in range(row.shape[0]):
+        if not math.isfinite(row[i]):
+            return False
+    if row[ROW_M_MOTOR] <= 0 or row[ROW_M_ROD] < 0 or row[ROW_M_FOOT] <= 0:
+        return False
+    if row[ROW_K_SPRING] <= 0 or row[ROW_C_SPRING] < 0 or row[ROW_RADIUS] <= 0:
+        return False
+    if row[ROW_RHO] < 0 or not (0.0 < row[ROW_PHI] < 1.0):
+        return False
+    if row[_P_K] <= 0 or row[_P_R] <= 0:
+        return False
+    return row[_P_CD] >= 0 and row[_P_KAPPA] >= 0 and row[_P_K2] >= 0 and row[_P_B] >= 0
+
+
+@njit(cache=True)
+def _set_memory(c, zmax):
+    """Set the crater depth z_max [m] and the quantities derived from it."""
+    c[_C_ZMAX] = zmax
+    c[_C_FSMAX] = static_strength(zmax, c[_C_K], c[_C_K2])
+    c[_C_ZFREE] = zmax - c[_C_FSMAX] / (c[_C_R] * c[_C_K])
+
+
+@njit(cache=True)
+def _set_segment(c, si, nseg, seg):
+    """Point the actuator at segment ``si`` (``si >= nseg``: hold after the command)."""
+    if si < nseg:
+        c[_C_SEGCOEF] = seg[si, 1]
+        c[_C_SEGOFF] = seg[si, 2]
+        c[_C_SEGT0] = 0.0 if si == 0 else seg[si - 1, 0]
+    else:
+        dur = seg[nseg - 1, 0] - (0.0 if nseg == 1 else seg[nseg - 2, 0])
+        c[_C_SEGOFF] = seg[nseg - 1, 1] * math.cos(c[_C_OMEGA] * dur) + seg[nseg - 1, 2]
+        c[_C_SEGCOEF] = 0.0
+        c[_C_SEGT0] = seg[nseg - 1, 0]
+
+
+@njit(cache=True)
+def _record(rec, n, t, y, mode, c):
+    if n >= rec.shape[0]:
+        return n
+    z = -y[1]
+    fg, ma, _ = _ground(z, -y[3], mode, c)
+    rec[n, 0] = t
+    rec[n, 1] = y[0]
+    rec[n, 2] = y[1]
+    rec[n, 3] = y[2]
+    rec[n, 4] = y[3]
+    rec[n, 5] = max(z, c[_C_ZMAX]) if mode == MODE_ADVANCING else c[_C_ZMAX]
+    rec[n, 6] = max(fg, 0.0)
+    rec[n, 7] = ma
+    rec[n, 8] = mode
+    rec[n, 9] = c[_C_SEGCOEF] * math.cos(c[_C_OMEGA] * (t - c[_C_SEGT0])) + c[_C_SEGOFF]
+    return n + 1
+
+
+@njit(cache=True)
+def _context(row, meta):
+    """Per-jump constants (``_C_*`` layout) from an input row and a command's meta."""
+    c = np.zeros(_C_SIZE)
+    c[_C_M] = row[ROW_M_MOTOR] + row[ROW_M_ROD]
+    c[_C_MMOT] = row[ROW_M_MOTOR]
+    c[_C_MF] = row[ROW_M_FOOT]
+    c[_C_KS] = row[ROW_K_SPRING]
+    c[_C_CS] = row[ROW_C_SPRING]
+    c[_C_K] = row[_P_K]
+    c[_C_CD] = row[_P_CD]
+    c[_C_AM] = row[_P_KAPPA] * row[ROW_RHO] * row[ROW_PHI]
+    c[_C_R] = row[_P_R]
+    c[_C_K2] = row[_P_K2]
+    c[_C_B] = row[_P_B]
+    c[_C_RAD] = row[ROW_RADIUS]
+    c[_C_HFULL] = row[ROW_RADIUS] * CONE_TAN
+    c[_C_OMEGA] = meta[0]
+    return c
+
+
+@njit(cache=True)
+def _initial_state(c, start):
+    """Start state of physics-model.md section 4; sets the bed memory in ``c``."""
+    if start == START_SETTLED:
+        m_upper = c[_C_M]
+        weight = (m_upper + c[_C_MF]) * G
+        k, k2 = c[_C_K], c[_C_K2]
+        z0 = 2.0 * weight / (k + math.sqrt(k * k + 4.0 * k2 * weight))  # F_static(z0) = W
+        _set_memory(c, z0)
+        c[_C_ZENTRY] = z0
+        return (-z0 - m_upper * G / c[_C_KS], -z0, 0.0, 0.0)
+    _set_memory(c, 0.0)
+    c[_C_ZENTRY] = 0.0
+    return (0.0, 0.0, 0.0, 0.0)
+
+
+@njit(cache=True)
+def _switch(event, y, c):
+    """New regime after a regime event at state ``y`` (updates the bed memory in c)."""
+    if event == _EV_ADV_EXIT:  # stopped advancing: the crater bottom is here
+        _set_memory(c, -y[1])
+        return MODE_CONTACT if c[_C_FSMAX] > 0.0 else MODE_FREE
+    if event == _EV_RELEASE:
+        return MODE_FREE
+    if event == _EV_TOUCH and c[_C_FSMAX] > 0.0:
+        return MODE_CONTACT
+    # reached the crater bottom: a new advancing episode (and added-mass cone) starts
+    c[_C_ZENTRY] = c[_C_ZMAX]
+    return MODE_ADVANCING
+
+
+@njit(cache=True)
+def simulate_one(row, seg, meta, opts, rec, record):
+    """Simulate one jump.
+
+    Parameters
+    ----------
+    row : ndarray, shape (ROW_SIZE,)
+        Robot, phi and force parameters (``ROW_*`` layout, SI).
+    seg, meta : ndarray
+        The command's table (``CommandProgram.as_table``).
+    opts : ndarray, shape (OPT_SIZE,)
+        Tolerances and limits (``OPT_*``).
+    rec : ndarray, shape (capacity, REC_SIZE)
+        Trajectory buffer (written only if ``record``).
+    record : bool
+        Whether to record the trajectory (every accepted step and event).
+
+    Returns
+    -------
+    height : float
+        Jump height [m] (NaN unless status is OK).
+    status : int
+    n_steps : int
+        Runge-Kutta steps attempted (event refinements excluded).
+    n_rec : int
+        Rows written to ``rec``.
+    """
+    if not _valid_row(row):
+        return np.nan, STATUS_BAD_INPUT, 0, 0
+    tol = (opts[OPT_RTOL], opts[OPT_ATOL_X], opts[OPT_ATOL_V])
+    hmax, max_steps = opts[OPT_HMAX], int(opts[OPT_MAX_STEPS])
+    c = _context(row, meta)
+    nseg = int(meta[1])
+    push = int(meta[3])
+    t_final = seg[nseg - 1, 0] + opts[OPT_T_AFTER]
+    y = _initial_state(c, int(meta[2]))
+    si = 0
+    _set_segment(c, si, nseg, seg)
+
+    # initial regime: advancing if the foot accelerates into the bed at the yield point
+    t = 0.0
+    mode = MODE_ADVANCING
+    f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
+    if f[1] >= 0.0:
+        mode = MODE_CONTACT if c[_C_FSMAX] > 0.0 else MODE_FREE
+        f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
+
+    n_rec = _record(rec, 0, t, y, mode, c) if record else 0
+    in_window = push == 0
+    height = y[1] if in_window else -np.inf
+    h = min(1e-4, hmax)
+    n_steps = 0
+    while True:
+        if n_steps >= max_steps:
+            return np.nan, STATUS_STEP_LIMIT, n_steps, n_rec
+        t_stop = seg[si, 0] if si < nseg else t_final
+        remaining = t_stop - t
+        landing = h >= remaining * (1.0 - 1e-12)
+        h_try = remaining if landing else h
+        y1, f1, err = _dopri_step(t, y, f, h_try, mode, c, tol)
+        n_steps += 1
+        if not math.isfinite(err):
+            h = 0.25 * h_try
+            if h < 1e-13:
+                return np.nan, STATUS_NONFINITE, n_steps, n_rec
+            continue
+        if err > 1.0:
+            h = h_try * max(0.2, 0.9 * err**-0.2)
+            if h < 1e-13:
+                return np.nan, STATUS_STEP_UNDERFLOW, n_steps, n_rec
+            continue
+        # accepted step [t, t + h_try]: the earliest regime event inside it, if any
+        event = _EV_NONE
+        s_end = h_try
+        if mode == MODE_ADVANCING:
+            first, last = _EV_ADV_EXIT, _EV_ADV_EXIT
+        elif mode == MODE_CONTACT:
+            first, last = _EV_REENTER, _EV_RELEASE
+        else:
+            first, last = _EV_TOUCH, _EV_TOUCH
+        for kind in range(first, last + 1):
+            g0 = _g(kind, y, c)
+            if g0 > 0.0:
+                continue
+            if _g(kind, y1, c) > 0.0:
+                s, ye, fe = _locate(kind, t, y, f, y1, f1, h_try, mode, c, tol)
+            else:  # a crossing that comes back inside the step (glancing contact)
+                sm, ym, fm, _ = _glance(kind, t, y, f, y1, f1, h_try, mode, c, tol)
+                if sm < 0.0:
+                    continue
+                s, ye, fe = _locate(kind, t, y, f, ym, fm, sm, mode, c, tol)
+            if s < s_end:
+                s_end, event, y1, f1 = s, kind, ye, fe
+        # jump height: endpoint and interior maximum of x_f
+        if in_window:
+            if y[3] > 0.0 and y1[3] < 0.0:
+                _, ya, _ = _locate(_EV_APEX, t, y, f, y1, f1, s_end, mode, c, tol)
+                height = max(height, ya[1])
+            height = max(height, y1[1])
+        touchdown = si >= nseg and y[1] >= 0.0 and y1[1] < 0.0
+        t = t_stop if (landing and event == _EV_NONE) else t + s_end
+        y, f = y1, f1
+        if not (math.isfinite(y[0]) and math.isfinite(y[1]) and math.isfinite(y[2])
+                and math.isfinite(y[3])):  # fmt: skip
+            return np.nan, STATUS_NONFINITE, n_steps, n_rec
+        if event != _EV_NONE:
+            mode = _switch(event, y, c)
+            f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
+        elif landing:
+            si += 1
+            _set_segment(c, si, nseg, seg)
+            if si == push:
+                in_window = True
+                height = max(height, y[1])
+            f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
+        if record:
+            n_rec = _record(rec, n_rec, t, y, mode, c)
+        if touchdown or si > nseg:
+            return height, STATUS_OK, n_steps, n_rec
+        if not (landing or event != _EV_NONE):
+            h = h_try * (5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err**-0.2)))
+        h = min(h, hmax)
+
+
+@njit(cache=True, parallel=True)
+def simulate_batch(rows, cmd_index, seg_tables, metas, opts, heights, status, n_steps):
+    """Simulate ``rows.shape[0]`` jumps (in parallel over numba threads)."""
+    empty = np.empty((0, REC_SIZE))
+    for i in prange(rows.shape[0]):
+        j = cmd_index[i]
+        hgt, st, ns, _ = simulate_one(rows[i], seg_tables[j], metas[j], opts, empty, False)
+        heights[i] = hgt
+        status[i] = st
+        n_steps[i] = ns
