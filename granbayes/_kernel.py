@@ -52,6 +52,7 @@ _P_KAPPA = ROW_FORCE0 + PARAMETER_NAMES.index("kappa")
 _P_R = ROW_FORCE0 + PARAMETER_NAMES.index("r_unload")
 _P_K2 = ROW_FORCE0 + PARAMETER_NAMES.index("k2")
 _P_B = ROW_FORCE0 + PARAMETER_NAMES.index("b")
+_P_COMP = ROW_FORCE0 + PARAMETER_NAMES.index("c_comp")
 
 OPT_RTOL, OPT_ATOL_X, OPT_ATOL_V, OPT_HMAX, OPT_MAX_STEPS, OPT_T_AFTER = range(6)
 OPT_SIZE = 6
@@ -87,7 +88,8 @@ _C_M, _C_MMOT, _C_MF, _C_KS, _C_CS = 0, 1, 2, 3, 4
 _C_K, _C_CD, _C_AM, _C_R, _C_K2, _C_B = 5, 6, 7, 8, 9, 10
 _C_RAD, _C_HFULL, _C_OMEGA, _C_SEGCOEF, _C_SEGT0, _C_SEGOFF = 11, 12, 13, 14, 15, 16
 _C_ZMAX, _C_ZENTRY, _C_ZFREE, _C_FSMAX = 17, 18, 19, 20
-_C_SIZE = 21
+_C_COMP, _C_ZC, _C_FC, _C_MULT = 21, 22, 23, 24
+_C_SIZE = 25
 
 # events (each is g(y) crossing from <= 0 to > 0)
 _EV_NONE = -1
@@ -114,8 +116,33 @@ _C2, _C3, _C4, _C5 = 0.2, 0.3, 0.8, 8.0 / 9.0
 # GROUND MODEL: the force-term library (physics-model.md section 3). New terms go here.
 @njit(cache=True)
 def static_strength(z, k, k2):
-    """F_static(z) = k z + k2 z^2 [N]: the yield force of the bed at depth z [m]."""
+    """F_static(z) = k z + k2 z^2 [N]: the yield force of the fresh bed at depth z [m]."""
     return k * z + k2 * z * z
+
+
+@njit(cache=True)
+def _yield_force(z, c):
+    """Yield force [N] of the bed at depth z, compacted below z_c after the first episode.
+
+    ``compaction``: once the first advancing episode ends at depth ``z_c``, the grains
+    below are denser and the loading stiffness below ``z_c`` is ``(1 + c_comp)`` times
+    that of the fresh bed: ``F = F_c + (1 + c_comp) (F_static(z) - F_c)``, continuous at
+    ``z_c`` (``c[_C_MULT]`` is 1 until then).
+    """
+    base = static_strength(z, c[_C_K], c[_C_K2])
+    mult = c[_C_MULT]
+    if mult != 1.0 and z > c[_C_ZC]:
+        return c[_C_FC] + mult * (base - c[_C_FC])
+    return base
+
+
+@njit(cache=True)
+def _end_of_episode(z, c):
+    """Bed memory when an advancing episode ends at depth z [m] (the first compacts)."""
+    if c[_C_MULT] == 1.0 and c[_C_COMP] > 0.0:
+        c[_C_ZC] = z
+        c[_C_FC] = static_strength(z, c[_C_K], c[_C_K2])
+        c[_C_MULT] = 1.0 + c[_C_COMP]
 
 
 @njit(cache=True)
@@ -128,7 +155,7 @@ def cone_volume(h, radius):
 def _ground(z, zd, mode, c):
     """Ground force F_g [N], added mass m_a [kg] and momentum flux [N] (up positive)."""
     if mode == MODE_ADVANCING:
-        fg = c[_C_K] * z + c[_C_K2] * z * z + c[_C_CD] * zd * zd + c[_C_B] * zd
+        fg = _yield_force(z, c) + c[_C_CD] * zd * zd + c[_C_B] * zd
         am = c[_C_AM]
         if am > 0.0:
             h = CONE_MU * (z - c[_C_ZENTRY])
@@ -284,22 +311,22 @@ def _glance(kind, t, y0, f0, y1, f1, h, mode, c, tol):
     g1 = _g(kind, y1, c)
     d0 = h * _gdot(kind, y0, f0, c)
     d1 = h * _gdot(kind, y1, f1, c)
-    if not (d0 > 0.0 and d1 < 0.0):
-        return -1.0, y1, f1, g1
-    # stationary point of the cubic: p'(th) = A th^2 + B th + C = 0
+    # interior local maximum of the cubic interpolant: p'(th) = qa th^2 + qb th + qc = 0
+    # with p''(th) = 2 qa th + qb < 0 (whatever the slopes at the ends of the step)
     qa = 6 * g0 + 3 * d0 - 6 * g1 + 3 * d1
     qb = -6 * g0 - 4 * d0 + 6 * g1 - 2 * d1
     qc = d0
+    th = -1.0
     if abs(qa) < 1e-300:
-        th = -qc / qb
+        if qb < 0.0:
+            th = -qc / qb
     else:
         disc = qb * qb - 4 * qa * qc
-        if disc < 0.0:
-            return -1.0, y1, f1, g1
-        sq = math.sqrt(disc)
-        r1 = (-qb - sq) / (2 * qa)
-        r2 = (-qb + sq) / (2 * qa)
-        th = r1 if 0.0 < r1 < 1.0 else r2
+        if disc >= 0.0:
+            sq = math.sqrt(disc)
+            for r in ((-qb - sq) / (2 * qa), (-qb + sq) / (2 * qa)):
+                if 0.0 < r < 1.0 and 2 * qa * r + qb < 0.0:
+                    th = r
     if not (0.0 < th < 1.0) or _hermite(th, g0, g1, d0, d1) <= -_gtol(kind, c):
         return -1.0, y1, f1, g1
     s = th * h
@@ -379,14 +406,20 @@ def _valid_row(row):
         return False
     if row[_P_K] <= 0 or row[_P_R] <= 0:
         return False
-    return row[_P_CD] >= 0 and row[_P_KAPPA] >= 0 and row[_P_K2] >= 0 and row[_P_B] >= 0
+    return (
+        row[_P_CD] >= 0
+        and row[_P_KAPPA] >= 0
+        and row[_P_K2] >= 0
+        and row[_P_B] >= 0
+        and row[_P_COMP] >= 0
+    )
 
 
 @njit(cache=True)
 def _set_memory(c, zmax):
     """Set the crater depth z_max [m] and the quantities derived from it."""
     c[_C_ZMAX] = zmax
-    c[_C_FSMAX] = static_strength(zmax, c[_C_K], c[_C_K2])
+    c[_C_FSMAX] = _yield_force(zmax, c)
     c[_C_ZFREE] = zmax - c[_C_FSMAX] / (c[_C_R] * c[_C_K])
 
 
@@ -441,6 +474,8 @@ def _context(row, meta):
     c[_C_RAD] = row[ROW_RADIUS]
     c[_C_HFULL] = row[ROW_RADIUS] * CONE_TAN
     c[_C_OMEGA] = meta[0]
+    c[_C_COMP] = row[_P_COMP]
+    c[_C_MULT] = 1.0
     return c
 
 
@@ -464,6 +499,7 @@ def _initial_state(c, start):
 def _switch(event, y, c):
     """New regime after a regime event at state ``y`` (updates the bed memory in c)."""
     if event == _EV_ADV_EXIT:  # stopped advancing: the crater bottom is here
+        _end_of_episode(-y[1], c)
         _set_memory(c, -y[1])
         return MODE_CONTACT if c[_C_FSMAX] > 0.0 else MODE_FREE
     if event == _EV_RELEASE:

@@ -130,6 +130,22 @@ TERMS: dict[str, ForceTerm] = {
             (Parameter("b", "N s/m", "viscous coefficient", 0.0, 0.0, 1e6, (0, 50)),),
         ),
         ForceTerm(
+            "compaction",
+            "loading stiffness below the first crater times (1 + c_comp): a loose bed "
+            "compacted by the first intrusion",
+            (
+                Parameter(
+                    "c_comp",
+                    "-",
+                    "fractional stiffening after the first intrusion",
+                    0.0,
+                    0.0,
+                    100.0,
+                    (0, 2),
+                ),
+            ),
+        ),
+        ForceTerm(
             "unloading",
             "elastic unloading line of slope r_unload k from the last yield point",
             (

@@ -421,9 +421,13 @@ def simulate_trajectory(
     opts = dataclasses.replace(opts, max_step=min(opts.max_step, max_step))
     row = build_rows(exp.robot, phi, params)[0]
     seg, meta = program.as_table()
-    capacity = int(min(opts.max_steps, 4.0 * (program.t_end + opts.window_after) / max_step))
-    rec = np.empty((capacity + 1000, _kernel.REC_SIZE))
-    height, status, _, n = _kernel.simulate_one(row, seg, meta, opts.as_array(), rec, True)
+    capacity = int(4.0 * (program.t_end + opts.window_after) / max_step) + 1000
+    while True:  # grow the buffer until the whole trajectory fits
+        rec = np.empty((capacity, _kernel.REC_SIZE))
+        height, status, _, n = _kernel.simulate_one(row, seg, meta, opts.as_array(), rec, True)
+        if n < capacity:
+            break
+        capacity *= 4
     r = rec[:n]
     data = pd.DataFrame(
         {

@@ -1,0 +1,771 @@
+"""The ``granbayes`` command line (shared/data-format.md, "Command line").
+
+Subcommands
+-----------
+``granbayes simulate``
+    One jump (``--command``, ``--phi``, ``--param NAME=VALUE``) or a batch table
+    (``--batch IN.csv --out OUT.csv``).
+``granbayes demo``
+    The five jumps of the default robot and the hard-ground frequency sweep, with figures.
+
+Exit codes
+----------
+0
+    Success.
+2
+    Bad input: a command-line usage error or a problem with a user's file or value. One
+    line ``granbayes: error: <message>`` is printed to stderr (naming the file, row and
+    column where there is one) and nothing is written.
+3
+    The simulation ran but at least one jump did not finish (status ``failed:...``, height
+    NaN). Everything requested is still printed and written.
+
+Adding a subcommand
+-------------------
+Write ``_add_<name>_arguments(parser)`` and ``_run_<name>(args) -> int`` and append a
+:class:`Subcommand` to :data:`SUBCOMMANDS`. ``run`` raises :class:`~granbayes.InputError`
+(or :class:`UsageError`) for bad input; :func:`main` turns it into the one-line message
+and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import difflib
+import json
+import math
+import os
+import re
+import sys
+import tempfile
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn
+
+import numpy as np
+import pandas as pd
+
+from . import __version__
+from .errors import InputError
+from .experiment import COMMAND_NAMES, Experiment, load_batch_table, load_experiment
+from .forces import PARAMETER_NAMES, PARAMETERS, TERMS, parameter_term
+from .simulator import Status, simulate, simulate_table, simulate_trajectory
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = [
+    "DEMO_PARAMS",
+    "DEMO_PHI",
+    "EXIT_FAILED_JUMP",
+    "EXIT_INPUT",
+    "EXIT_OK",
+    "HARD_GROUND_FREQS_HZ",
+    "HARD_GROUND_PARAMS",
+    "SUBCOMMANDS",
+    "Subcommand",
+    "UsageError",
+    "atomic_path",
+    "build_parser",
+    "main",
+    "parse_params",
+    "run_demo",
+]
+
+#: Exit code of a successful run.
+EXIT_OK = 0
+#: Exit code of bad input (usage, files, values); nothing is written.
+EXIT_INPUT = 2
+#: Exit code when a jump did not finish (status ``failed:...``); outputs are still written.
+EXIT_FAILED_JUMP = 3
+
+#: Volume fraction of the demo bed: the critical packing of the founding thesis [-].
+DEMO_PHI = 0.612
+
+#: Force law of the demo: a representative depth + drag law for poppy seeds, *not* a
+#: measurement. ``k`` [N/m] depth stiffness, ``c_d`` [kg/m] quadratic drag, ``r_unload``
+#: [-] the default plastic bed of physics-model.md section 3.
+DEMO_PARAMS: dict[str, float] = {"k": 3000.0, "c_d": 50.0, "r_unload": 20.0}
+
+#: A rigid floor for the hard-ground sweep (physics-model.md section 6): very stiff
+#: ``k`` [N/m] and a bed that keeps its crater (``r_unload`` [-]).
+HARD_GROUND_PARAMS: dict[str, float] = {"k": 1e6, "r_unload": 50.0}
+
+#: Actuator frequencies of the hard-ground sweep [Hz].
+HARD_GROUND_FREQS_HZ: np.ndarray = np.arange(4.0, 30.0 + 0.5, 1.0)
+
+
+class UsageError(ValueError):
+    """A bad command-line argument; the message names the argument."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """Argument parser whose errors are one line and exit code 2 (no usage dump)."""
+
+    def error(self, message: str) -> NoReturn:
+        hint = f" (see '{self.prog} --help')"
+        self.exit(EXIT_INPUT, f"granbayes: error: {message}{hint}\n")
+
+
+@dataclass(frozen=True)
+class Subcommand:
+    """One ``granbayes`` subcommand.
+
+    Parameters
+    ----------
+    name : str
+        The word typed after ``granbayes``.
+    help : str
+        One line for ``granbayes --help``.
+    add_arguments : callable
+        Adds the subcommand's options to its parser.
+    run : callable
+        Runs it with the parsed arguments and returns the exit code.
+    description : str
+        Longer text for ``granbayes NAME --help`` (default: ``help``).
+    """
+
+    name: str
+    help: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+    description: str = ""
+
+
+# ----------------------------------------------------------------------------------------
+# Helpers: validation and safe writing
+# ----------------------------------------------------------------------------------------
+
+
+def _suggest(word: str, options: Sequence[str]) -> str:
+    close = difflib.get_close_matches(word, list(options), n=1)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def _check_command(name: str) -> str:
+    if name not in COMMAND_NAMES:
+        raise UsageError(
+            f"--command {name}: unknown command{_suggest(name, COMMAND_NAMES)}; "
+            f"valid commands: {', '.join(COMMAND_NAMES)}"
+        )
+    return name
+
+
+def _check_phi(text: str) -> float:
+    try:
+        phi = float(text)
+    except ValueError:
+        raise UsageError(f"--phi {text}: expected a number") from None
+    if not (math.isfinite(phi) and 0.0 < phi < 1.0):
+        raise UsageError(f"--phi {text}: must be a volume fraction in the open interval (0, 1)")
+    return phi
+
+
+def parse_params(items: Sequence[str]) -> dict[str, float]:
+    """Parse and validate ``--param NAME=VALUE`` arguments.
+
+    Parameters
+    ----------
+    items : sequence of str
+        The ``NAME=VALUE`` strings, in command-line order.
+
+    Returns
+    -------
+    dict of str to float
+        Parameter name to value [SI], in command-line order.
+
+    Raises
+    ------
+    UsageError
+        Naming the offending argument: malformed, unknown name, repeated name, not a
+        number, outside the parameter's bounds (``Parameter.check``), or a required
+        parameter (``k``, the depth term) missing.
+    """
+    by_name = {p.name: p for p in PARAMETERS}
+    params: dict[str, float] = {}
+    for item in items:
+        name, sep, text = (part.strip() for part in item.partition("="))
+        if not sep or not name or not text:
+            raise UsageError(f"--param {item}: expected NAME=VALUE, e.g. --param k=3000")
+        if name not in by_name:
+            raise UsageError(
+                f"--param {item}: unknown force parameter '{name}'"
+                f"{_suggest(name, PARAMETER_NAMES)}; expected one of "
+                + ", ".join(f"{p.name} [{p.unit}] ({parameter_term(p.name)})" for p in PARAMETERS)
+            )
+        if name in params:
+            raise UsageError(f"--param {item}: {name} is given more than once")
+        try:
+            value = float(text)
+        except ValueError:
+            raise UsageError(f"--param {item}: {name} must be a number, got '{text}'") from None
+        problem = by_name[name].check(value)
+        if problem:
+            raise UsageError(f"--param {item}: {problem}")
+        params[name] = value
+    for term in TERMS.values():
+        for p in term.parameters:
+            if p.absent is None and p.name not in params:
+                raise UsageError(
+                    f"--param {p.name}=VALUE is required: the {term.name} term "
+                    f"({p.description}, {p.name} [{p.unit}]) is part of every force law"
+                )
+    return params
+
+
+def _check_target(path: Path, option: str) -> Path:
+    """Check before any computation that ``path`` can be written as a file."""
+    if path.is_dir():
+        raise UsageError(f"{option} {path}: is a folder, expected a file name")
+    if not path.parent.is_dir():
+        raise UsageError(f"{option} {path}: folder {path.parent} does not exist")
+    return path
+
+
+@contextlib.contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; move it onto ``path`` only on success.
+
+    A failure (an exception inside the ``with`` block) removes the temporary file and
+    leaves an existing ``path`` untouched, so a reader never sees a half-written file.
+
+    Parameters
+    ----------
+    path : Path
+        The final file.
+
+    Yields
+    ------
+    Path
+        Where to write.
+    """
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.chmod(tmp_path, 0o666 & ~_umask())
+        os.replace(tmp_path, path)
+    except BaseException:
+        tmp_path.unlink(missing_ok=True)
+        raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _write_csv(table: pd.DataFrame, path: Path) -> None:
+    with atomic_path(path) as tmp:
+        table.to_csv(tmp, index=False)
+
+
+def _write_figure(fig: Figure, path: Path) -> None:
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=150)
+
+
+def _json_number(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def _load_experiment(path: str | None) -> Experiment:
+    return Experiment() if path is None else load_experiment(path)
+
+
+def _law_text(params: dict[str, float]) -> str:
+    units = {p.name: p.unit for p in PARAMETERS}
+    parts = []
+    for name, value in params.items():
+        unit = units[name]
+        shown = re.sub(r"e\+?(-?)0*(\d)", r"e\1\2", f"{value:g}")  # 1e+06 -> 1e6
+        parts.append(f"{name} = {shown}" + ("" if unit == "-" else f" {unit}"))
+    return ", ".join(parts)
+
+
+# ----------------------------------------------------------------------------------------
+# granbayes simulate
+# ----------------------------------------------------------------------------------------
+
+
+def _add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--experiment",
+        metavar="DIR|FILE.toml",
+        help="experiment folder or experiment.toml with the robot and command settings "
+        "(default: the representative robot of the physics model)",
+    )
+    one = parser.add_argument_group("one jump")
+    one.add_argument("--command", metavar="NAME", help=f"one of {', '.join(COMMAND_NAMES)}")
+    one.add_argument("--phi", metavar="PHI", help="volume fraction of the bed, in (0, 1)")
+    units = ", ".join(f"{p.name} [{p.unit}]" for p in PARAMETERS)
+    required = " and ".join(p.name for p in PARAMETERS if p.absent is None)
+    required += " is" if required.count(" and ") == 0 else " are"
+    one.add_argument(
+        "--param",
+        metavar="NAME=VALUE",
+        action="append",
+        default=[],
+        help=f"force-term parameter, repeatable; {required} required. Parameters: {units}",
+    )
+    one.add_argument("--json", action="store_true", help="print one JSON object")
+    one.add_argument(
+        "--trajectory", metavar="OUT.csv", type=Path, help="write the jump's time series"
+    )
+    one.add_argument(
+        "--plot", metavar="OUT.png", type=Path, help="write a figure of the trajectory"
+    )
+    batch = parser.add_argument_group("batch of jumps")
+    batch.add_argument(
+        "--batch",
+        metavar="IN.csv",
+        type=Path,
+        help="table with columns command, phi, optional force parameters and per-row "
+        "robot/command overrides; one jump per row",
+    )
+    batch.add_argument(
+        "--out",
+        metavar="OUT.csv",
+        type=Path,
+        help="batch output: the input plus height_mm and status",
+    )
+    batch.add_argument(
+        "--threads", metavar="N", type=int, help="threads for the batch (default: all)"
+    )
+
+
+def _run_simulate(args: argparse.Namespace) -> int:
+    if args.batch is not None:
+        return _simulate_batch(args)
+    return _simulate_one(args)
+
+
+def _simulate_one(args: argparse.Namespace) -> int:
+    given = [o for o in ("out", "threads") if getattr(args, o) is not None]
+    if given:
+        raise UsageError(f"--{given[0]} is only used with --batch")
+    if args.command is None or args.phi is None:
+        missing = "--command" if args.command is None else "--phi"
+        raise UsageError(f"{missing} is required (or give --batch IN.csv --out OUT.csv)")
+    command = _check_command(args.command)
+    phi = _check_phi(args.phi)
+    params = parse_params(args.param)
+    if args.trajectory is not None:
+        _check_target(args.trajectory, "--trajectory")
+    if args.plot is not None:
+        _check_target(args.plot, "--plot")
+    experiment = _load_experiment(args.experiment)
+
+    result = simulate(command, phi, params, experiment=experiment)
+    height = float(result.height_mm[0])
+    status = Status(int(result.status[0]))
+    if args.trajectory is not None or args.plot is not None:
+        traj = simulate_trajectory(command, phi, params, experiment=experiment)
+        if args.trajectory is not None:
+            _write_csv(traj.data, args.trajectory)
+        if args.plot is not None:
+            from .plots import plot_trajectory
+
+            shown = f"height {height:.1f} mm" if math.isfinite(height) else "no height"
+            title = (
+                f"{command.replace('_', ' ')} jump at φ = {phi:g}: {shown} ({status.label})\n"
+                f"{_law_text(params)}"
+            )
+            _write_figure(plot_trajectory(traj, title=title), args.plot)
+
+    if args.json:
+        record = {
+            "command": command,
+            "phi": phi,
+            "height_mm": _json_number(height),
+            "status": status.label,
+            "params": params,
+            # every parameter of the library as simulated (absent terms at their default)
+            "effective_params": {p.name: params.get(p.name, p.absent) for p in PARAMETERS},
+            "robot": dataclasses.asdict(experiment.robot),
+            "command_settings": dataclasses.asdict(experiment.command),
+            "phi_c": experiment.phi_c,
+            "experiment": experiment.source,
+            "n_steps": int(result.n_steps[0]),
+            "trajectory": None if args.trajectory is None else str(args.trajectory),
+            "plot": None if args.plot is None else str(args.plot),
+            "granbayes_version": __version__,
+        }
+        print(json.dumps(record, allow_nan=False))
+    else:
+        shown = f"{height:.2f} mm" if math.isfinite(height) else "none"
+        print(f"{command} at phi={phi:g}: height {shown} ({status.label})")
+    return EXIT_OK if status == Status.OK else EXIT_FAILED_JUMP
+
+
+def _simulate_batch(args: argparse.Namespace) -> int:
+    single = ("command", "phi", "trajectory", "plot")
+    given = [o for o in single if getattr(args, o) is not None]
+    given += ["param"] if args.param else []
+    given += ["json"] if args.json else []
+    if given:
+        raise UsageError(f"--{given[0]} cannot be used with --batch")
+    if args.out is None:
+        raise UsageError("--batch needs --out OUT.csv")
+    if args.threads is not None and args.threads < 1:
+        raise UsageError(f"--threads {args.threads}: must be >= 1")
+    _check_target(args.out, "--out")
+    experiment = _load_experiment(args.experiment)
+    table = load_batch_table(args.batch)
+    if "height_mm" in table.columns:
+        print(
+            f"granbayes: note: {args.batch} already has a height_mm column; "
+            f"{args.out} gets the simulated heights in it",
+            file=sys.stderr,
+        )
+    out = simulate_table(table, experiment, n_threads=args.threads)
+    _write_csv(out, args.out)
+    failed = int((out["status"] != Status.OK.label).sum())
+    if failed:
+        print(
+            f"granbayes: warning: {failed} of {len(out)} jumps did not finish "
+            f"(see the status column of {args.out})",
+            file=sys.stderr,
+        )
+        return EXIT_FAILED_JUMP
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------
+# granbayes demo
+# ----------------------------------------------------------------------------------------
+
+
+def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--out",
+        metavar="DIR",
+        type=Path,
+        default=Path("demo-output"),
+        help="folder for the figures and tables (created; default: demo-output)",
+    )
+
+
+def _demo_jumps(out: Path, experiment: Experiment) -> None:
+    """The five commands at ``DEMO_PHI`` with ``DEMO_PARAMS``: table, CSV and figure."""
+    from .plots import plot_jumps
+
+    trajs = {
+        c: simulate_trajectory(c, DEMO_PHI, DEMO_PARAMS, experiment=experiment)
+        for c in COMMAND_NAMES
+    }
+    table = pd.DataFrame({"command": list(COMMAND_NAMES), "phi": DEMO_PHI} | DEMO_PARAMS)
+    heights = simulate_table(table, experiment)
+    print(f"Five jumps of the default robot at phi = {DEMO_PHI:g}, {_law_text(DEMO_PARAMS)}:")
+    print(f"  {'command':<25} {'height [mm]':>11}  status")
+    for row in heights.itertuples():
+        print(f"  {row.command:<25} {row.height_mm:>11.2f}  {row.status}")
+    _write_csv(heights, out / "heights.csv")
+    robot = experiment.robot
+    title = (
+        f"The five jump commands on a granular bed (φ = {DEMO_PHI:g}; representative law "
+        f"{_law_text(DEMO_PARAMS)})\nrobot: M = {robot.m_upper:g} kg, "
+        f"m_foot = {robot.m_foot:g} kg, k_spring = {robot.k_spring:g} N/m; actuator "
+        f"A = {experiment.command.amplitude_mm:g} mm, f = {experiment.command.freq_hz:g} Hz"
+    )
+    _write_figure(plot_jumps(trajs, title), out / "jumps.png")
+
+
+def _demo_hard_ground(out: Path, experiment: Experiment) -> None:
+    """Single and stutter jump height against frequency on a rigid floor."""
+    from .plots import plot_hard_ground
+
+    freqs = HARD_GROUND_FREQS_HZ
+    table = pd.DataFrame(
+        {
+            "command": np.repeat(["single", "stutter"], freqs.size),
+            "phi": DEMO_PHI,
+            "freq_hz": np.tile(freqs, 2),
+        }
+        | HARD_GROUND_PARAMS
+    )
+    result = simulate_table(table, experiment)
+    single = result["height_mm"].to_numpy()[: freqs.size]
+    stutter = result["height_mm"].to_numpy()[freqs.size :]
+    f0 = experiment.robot.f0_hz
+    print(
+        f"Rigid floor ({_law_text(HARD_GROUND_PARAMS)}), f0 = {f0:.2f} Hz: best single "
+        f"{freqs[np.nanargmax(single)]:g} Hz ({np.nanmax(single):.1f} mm), best stutter "
+        f"{freqs[np.nanargmax(stutter)]:g} Hz ({np.nanmax(stutter):.1f} mm)"
+    )
+    _write_csv(result, out / "hard_ground.csv")
+    title = (
+        "Rigid floor: jump height vs actuator frequency\n"
+        f"(default robot, A = {experiment.command.amplitude_mm:g} mm; "
+        f"{_law_text(HARD_GROUND_PARAMS)})"
+    )
+    _write_figure(
+        plot_hard_ground(freqs, single, stutter, f0, title=title), out / "hard_ground.png"
+    )
+
+
+def run_demo(out: Path) -> None:
+    """Run the demo: simulate, print a summary and write figures and tables into ``out``.
+
+    Writes ``heights.csv`` (the five jumps; a valid ``simulate --batch`` input),
+    ``jumps.png`` (:func:`granbayes.plots.plot_jumps`), ``hard_ground.csv`` and
+    ``hard_ground.png`` (:func:`granbayes.plots.plot_hard_ground`).
+
+    Parameters
+    ----------
+    out : Path
+        Output folder (created if needed).
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    experiment = Experiment()
+    _demo_jumps(out, experiment)
+    _demo_hard_ground(out, experiment)
+    written = ("heights.csv", "jumps.png", "hard_ground.csv", "hard_ground.png")
+    print(f"Wrote {', '.join(written)} to {out}")
+
+
+def _run_demo(args: argparse.Namespace) -> int:
+    run_demo(args.out)
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------
+# granbayes fit
+# ----------------------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def staged_folder(out: Path, resume: bool) -> Iterator[Path]:
+    """A work folder ``OUT.partial`` that replaces ``out`` only when the block succeeds.
+
+    A failed or interrupted run leaves ``out`` untouched and keeps ``OUT.partial`` (with
+    its MCMC checkpoint) for ``--resume``; without ``resume`` it is cleared first.
+    """
+    import shutil
+
+    work = out.with_name(out.name + ".partial")
+    if work.exists() and not resume:
+        shutil.rmtree(work)
+    work.mkdir(parents=True, exist_ok=True)
+    yield work
+    old = out.with_name(out.name + ".old")
+    if old.exists():
+        shutil.rmtree(old)
+    if out.exists():
+        out.rename(old)
+    work.rename(out)
+    if old.exists():
+        shutil.rmtree(old)
+
+
+def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data", metavar="DIR", type=Path, help="experiment folder")
+    parser.add_argument(
+        "--out",
+        metavar="OUT",
+        type=Path,
+        required=True,
+        help="output folder (replaced only when the fit succeeds)",
+    )
+    parser.add_argument(
+        "--terms",
+        default="depth,drag",
+        help=f"comma-separated force terms (default depth,drag; available: {', '.join(TERMS)})",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue an interrupted run from OUT.partial/chains.h5",
+    )
+    parser.add_argument(
+        "--phi-mode",
+        choices=("per_phi", "quadratic"),
+        default="per_phi",
+        help="independent laws per volume fraction, or quadratic in phi-phi_c",
+    )
+    parser.add_argument("--noise", choices=("normal", "student_t"), default="normal")
+    parser.add_argument("--nu", type=float, default=4.0, help="Student-t degrees of freedom")
+    parser.add_argument(
+        "--sigma",
+        choices=("per_phi", "global"),
+        default="per_phi",
+        help="scatter per volume fraction or global (quadratic mode)",
+    )
+    parser.add_argument("--priors", type=Path, help="TOML file of prior overrides")
+    parser.add_argument(
+        "--compare-commands",
+        action="store_true",
+        help="also fit each command separately and compare by PSIS-LOO",
+    )
+    parser.add_argument(
+        "--truth", type=Path, help="truth.toml of synthetic data, overlaid on figures"
+    )
+    parser.add_argument("--walkers", type=int, default=16)
+    parser.add_argument("--max-steps", type=int, default=20_000)
+    parser.add_argument("--threads", type=int, help="numba threads (default: all cores)")
+    parser.add_argument("--progress", action="store_true", help="show progress bars")
+
+
+def _fit_config(args: argparse.Namespace):
+    from .fit import FitConfig
+    from .sampler import SamplerSettings
+
+    if args.walkers < 4 or args.walkers % 2:
+        raise UsageError(f"--walkers {args.walkers}: must be an even number >= 4")
+    if args.max_steps < 100:
+        raise UsageError(f"--max-steps {args.max_steps}: must be >= 100")
+    terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
+    sampler = SamplerSettings(
+        n_walkers=args.walkers,
+        max_steps=args.max_steps,
+        check_every=100,
+        n_draws=125,
+        progress=args.progress,
+    )
+    try:
+        return FitConfig(
+            terms=terms,
+            phi_mode=args.phi_mode,
+            noise=args.noise,
+            nu=args.nu,
+            sigma_mode=args.sigma,
+            sampler=sampler,
+            n_threads=args.threads,
+        )
+    except ValueError as exc:
+        raise UsageError(f"--terms {args.terms}: {exc}") from None
+
+
+def run_fit(args: argparse.Namespace) -> int:
+    """``granbayes fit``: validate everything, sample, write the report atomically."""
+    from .experiment import load_jumps
+    from .fit import compare_commands, fit
+    from .priors import load_priors
+    from .report import load_truth, write_fit_report
+
+    config = _fit_config(args)
+    experiment = load_experiment(args.data)
+    table = load_jumps(args.data, experiment)
+    priors = load_priors(args.priors) if args.priors else None
+    truth = load_truth(args.truth) if args.truth else None
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"--out {args.out}: exists and is not a folder")
+    with staged_folder(args.out, args.resume) as work:
+        result = fit(
+            experiment,
+            table,
+            config,
+            seed=args.seed,
+            priors=priors,
+            backend=work / "chains.h5",
+            resume=args.resume,
+            data_source=str(args.data),
+        )
+        uniqueness = (
+            compare_commands(experiment, table, result, seed=args.seed, priors=priors)
+            if args.compare_commands
+            else None
+        )
+        write_fit_report(result, work, truth=truth, uniqueness=uniqueness)
+    for w in result.warnings:
+        print(f"granbayes: warning: {w}", file=sys.stderr)
+    print((args.out / "summary.md").read_text())
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------
+# Registry and entry point
+# ----------------------------------------------------------------------------------------
+
+#: The subcommands, in ``--help`` order.
+SUBCOMMANDS: list[Subcommand] = [
+    Subcommand(
+        "simulate",
+        "simulate one jump, or a batch table of jumps",
+        _add_simulate_arguments,
+        _run_simulate,
+        description="Simulate one jump (--command, --phi, --param k=... [--param ...]) or "
+        "every row of a table (--batch IN.csv --out OUT.csv). Exit code 3 if a jump did "
+        "not finish (its status is failed:...); outputs are still written.",
+    ),
+    Subcommand(
+        "fit",
+        "Bayesian fit of a force law to an experiment folder",
+        _add_fit_arguments,
+        run_fit,
+        description="Sample the posterior of the force-term parameters (emcee) per volume "
+        "fraction, shared by all commands, and write posterior.nc, summary tables and "
+        "figures into OUT.",
+    ),
+    Subcommand(
+        "demo",
+        "simulate the five jumps and the hard-ground sweep; write figures",
+        _add_demo_arguments,
+        _run_demo,
+    ),
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``granbayes`` argument parser with every subcommand of :data:`SUBCOMMANDS`."""
+    parser = _Parser(
+        prog="granbayes",
+        description="Simulate a jumping robot on granular media and infer the ground force.",
+        epilog="Exit codes: 0 success, 2 bad input (nothing written), 3 a jump did not "
+        "finish (outputs written).",
+    )
+    parser.add_argument("--version", action="version", version=f"granbayes {__version__}")
+    sub = parser.add_subparsers(dest="subcommand", metavar="SUBCOMMAND", required=True)
+    for cmd in SUBCOMMANDS:
+        p = sub.add_parser(cmd.name, help=cmd.help, description=cmd.description or cmd.help)
+        cmd.add_arguments(p)
+        p.set_defaults(_run=cmd.run)
+    return parser
+
+
+def _one_line(err: BaseException) -> str:
+    message = err.args[0] if isinstance(err, KeyError) and err.args else str(err)
+    return " ".join(str(message).split())
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``granbayes`` with ``argv`` (default: ``sys.argv[1:]``).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments after the program name.
+
+    Returns
+    -------
+    int
+        Exit code: 0 success, 2 bad input, 3 a jump did not finish.
+    """
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, usage errors
+        return exc.code if isinstance(exc.code, int) else EXIT_INPUT
+    try:
+        return args._run(args)
+    except (InputError, UsageError, ValueError, KeyError) as err:
+        print(f"granbayes: error: {_one_line(err)}", file=sys.stderr)
+        return EXIT_INPUT
+    except OSError as err:
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"granbayes: error: {where}{err.strerror or err}", file=sys.stderr)
+        return EXIT_INPUT
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,195 @@
+"""The ArviZ adapter: every use of ArviZ in granbayes goes through this module.
+
+Results live in one data model, an ``xarray.DataTree`` in ArviZ 1.x conventions, with
+groups ``posterior``, ``log_likelihood``, ``posterior_predictive``, ``observed_data`` and
+``sample_stats``; observations are indexed by the dimension ``jump`` and volume fractions
+by ``phi``. Intervals are always named explicitly (``ci_prob``), never ArviZ's default.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import arviz as az
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+__all__ = [
+    "build_datatree",
+    "summary_table",
+    "loo",
+    "compare",
+    "plot_diagnostics",
+    "write_datatree",
+    "read_datatree",
+    "CI_PROB",
+]
+
+#: Credible-interval probability reported everywhere (equal-tailed).
+CI_PROB = 0.90
+
+
+def build_datatree(
+    posterior: Mapping[str, np.ndarray],
+    *,
+    dims: Mapping[str, Sequence[str]],
+    coords: Mapping[str, object],
+    log_likelihood: np.ndarray,
+    posterior_predictive: Mapping[str, np.ndarray],
+    observed: pd.DataFrame,
+    sample_stats: Mapping[str, np.ndarray],
+    attrs: Mapping[str, object],
+    stats_dims: Mapping[str, Sequence[str]] | None = None,
+) -> xr.DataTree:
+    """Assemble a DataTree from arrays with leading (chain, draw) axes.
+
+    Parameters
+    ----------
+    posterior : mapping of str to ndarray
+        Posterior variables, shape ``(chain, draw, *dims[name])``.
+    dims : mapping of str to sequence of str
+        Extra dimensions per posterior variable.
+    coords : mapping of str to array_like
+        Coordinate values per dimension.
+    log_likelihood : ndarray, shape (chain, draw, jump)
+        Pointwise log-likelihood of every measured jump (variable ``height_mm``).
+    posterior_predictive : mapping of str to ndarray
+        Variables of shape ``(chain, draw, jump)``, e.g. replicated heights [mm].
+    observed : pandas.DataFrame
+        One row per jump with ``height_mm`` and descriptive columns (``phi``,
+        ``command``, ``freq_hz``, ...), stored as coordinates of ``jump``.
+    sample_stats : mapping of str to ndarray
+        Per-draw sampler statistics, shape ``(chain, draw, ...)``.
+    attrs : mapping
+        Provenance (seed, versions, configuration, data hash); non-scalar values are
+        stored as JSON strings.
+    stats_dims : mapping of str to sequence of str, optional
+        Extra dimensions of the ``sample_stats`` variables.
+
+    Returns
+    -------
+    xarray.DataTree
+    """
+    n_jump = len(observed)
+    groups: dict[str, dict] = {
+        "posterior": dict(posterior),
+        "log_likelihood": {"height_mm": log_likelihood},
+        "observed_data": {"height_mm": observed["height_mm"].to_numpy(float)},
+    }
+    all_dims: dict[str, list[str]] = {k: list(v) for k, v in dims.items()}
+    all_dims["height_mm"] = ["jump"]
+    if posterior_predictive:
+        groups["posterior_predictive"] = dict(posterior_predictive)
+        all_dims.update({k: ["jump"] for k in posterior_predictive})
+    if sample_stats:
+        groups["sample_stats"] = dict(sample_stats)
+        all_dims.update({k: list(v) for k, v in (stats_dims or {}).items()})
+    used = {d for v in all_dims.values() for d in v}
+    all_coords = {k: np.asarray(v) for k, v in coords.items() if k in used}
+    all_coords["jump"] = np.arange(n_jump)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        dt = az.from_dict(groups, coords=all_coords, dims=all_dims)
+    extra = {
+        c: ("jump", observed[c].to_numpy())
+        for c in observed.columns
+        if c != "height_mm" and observed[c].notna().all()
+    }
+    for group in ("log_likelihood", "posterior_predictive", "observed_data"):
+        if group in dt.children:
+            dt[group] = dt[group].to_dataset().assign_coords(extra)
+    dt.attrs.update(
+        {k: (v if isinstance(v, str | int | float) else json.dumps(v)) for k, v in attrs.items()}
+    )
+    return dt
+
+
+def summary_table(
+    dt: xr.DataTree, var_names: Sequence[str] | None = None, ci_prob: float = CI_PROB
+) -> pd.DataFrame:
+    """Posterior summary with equal-tailed intervals, R-hat and ESS.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        Result with a ``posterior`` group.
+    var_names : sequence of str, optional
+        Variables to summarise (default: all).
+    ci_prob : float
+        Probability of the equal-tailed interval (named in the column headers).
+
+    Returns
+    -------
+    pandas.DataFrame
+    """
+    return az.summary(dt, var_names=var_names, ci_prob=ci_prob, ci_kind="eti")
+
+
+def loo(dt: xr.DataTree) -> dict[str, object]:
+    """PSIS-LOO of the ``height_mm`` log-likelihood.
+
+    Returns
+    -------
+    dict
+        ``elpd``, ``se``, ``p`` (effective number of parameters), ``elpd_i`` and
+        ``pareto_k`` (ndarrays over jumps), ``max_pareto_k``, ``n_bad_k`` (k > 0.7).
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = az.loo(dt, pointwise=True, var_name="height_mm")
+    k = np.asarray(res.pareto_k)
+    return {
+        "elpd": float(res.elpd),
+        "se": float(res.se),
+        "p": float(res.p),
+        "elpd_i": np.asarray(res.elpd_i),
+        "pareto_k": k,
+        "max_pareto_k": float(np.nanmax(k)),
+        "n_bad_k": int(np.sum(k > 0.7)),
+    }
+
+
+def compare(models: Mapping[str, xr.DataTree]) -> pd.DataFrame:
+    """PSIS-LOO comparison (``arviz.compare``): ``elpd``, ``elpd_diff``, ``dse``, ``weight``."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return az.compare(dict(models), var_name="height_mm")
+
+
+def plot_diagnostics(
+    dt: xr.DataTree, var_names: Sequence[str], out_dir: Path, stem: str = ""
+) -> list[Path]:
+    """Trace and rank plots (arviz-plots, matplotlib backend) written as PNG files.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    import arviz_plots as azp
+    from matplotlib import pyplot as plt
+
+    written = []
+    for kind, fn in (("trace", azp.plot_trace), ("rank", azp.plot_rank)):
+        path = Path(out_dir) / f"{kind}{stem}.png"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            pc = fn(dt, var_names=list(var_names), backend="matplotlib")
+            pc.savefig(path, dpi=110)
+        plt.close("all")
+        written.append(path)
+    return written
+
+
+def write_datatree(dt: xr.DataTree, path: Path) -> None:
+    """Write a DataTree to netCDF (h5netcdf engine)."""
+    dt.to_netcdf(path, engine="h5netcdf")
+
+
+def read_datatree(path: Path) -> xr.DataTree:
+    """Read a DataTree written by :func:`write_datatree`."""
+    return xr.open_datatree(path, engine="h5netcdf").load()

@@ -1,0 +1,403 @@
+"""Likelihood of measured jump heights under a force law, with its priors.
+
+A :class:`JumpModel` turns a matrix of walker positions (in sampling coordinates, see
+:mod:`granbayes.priors`) into log-posterior values and per-jump log-likelihoods, simulating
+every (walker, experimental configuration) pair in one batched simulator call. A failed
+simulation makes that walker's log-probability ``-inf``; nothing raises.
+
+Parametrisations of the force law across volume fractions (``phi_mode``):
+
+``"shared"``
+    one value per parameter for all jumps in the data (used per volume fraction: one
+    force law for all five commands, the thesis's question);
+``"quadratic"``
+    each parameter a quadratic in ``x = phi - phi_c`` (in log space for log-scale
+    parameters such as ``k``), fitted jointly over all volume fractions.
+
+Noise: Gaussian (default) or Student-t (``noise="student_t"``, ``nu`` degrees of freedom,
+fixed; a heavy-tailed option robust to outlying trials), with the scatter ``sigma_mm``
+fitted per volume fraction (default) or globally.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy.special import gammaln
+
+from .commands import CommandProgram, build_command
+from .experiment import CommandSettings, Experiment
+from .forces import PARAMETERS, TERMS, terms_of
+from .priors import Prior, default_priors
+from .simulator import SolverOptions, build_rows, simulate_rows
+
+__all__ = ["Observations", "JumpModel", "SETTING_COLUMNS"]
+
+#: Columns that, with ``phi`` and ``command``, define one simulation.
+SETTING_COLUMNS = ("amplitude_mm", "freq_hz", "delay_ms", "settle_periods")
+_CONFIG_COLUMNS = ("phi", "command", *SETTING_COLUMNS)
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Measured jumps grouped by simulation configuration.
+
+    Attributes
+    ----------
+    table : pandas.DataFrame
+        One row per jump (``load_jumps`` output): ``phi``, ``command``, ``height_mm`` and
+        the command settings.
+    configs : pandas.DataFrame
+        Unique ``(phi, command, settings)`` rows; one simulation each.
+    config_of_obs : ndarray of int, shape (n_obs,)
+        Row of ``configs`` for every jump.
+    programs : list of CommandProgram
+        One program per config.
+    """
+
+    table: pd.DataFrame
+    configs: pd.DataFrame
+    config_of_obs: np.ndarray
+    programs: list[CommandProgram] = field(repr=False)
+
+    @classmethod
+    def from_table(cls, table: pd.DataFrame) -> Observations:
+        """Group a validated jumps table (see :func:`granbayes.load_jumps`)."""
+        table = table.reset_index(drop=True)
+        configs = (
+            table[list(_CONFIG_COLUMNS)]
+            .drop_duplicates()
+            .sort_values(list(_CONFIG_COLUMNS))
+            .reset_index(drop=True)
+        )
+        key = pd.MultiIndex.from_frame(configs)
+        config_of_obs = key.get_indexer(pd.MultiIndex.from_frame(table[list(_CONFIG_COLUMNS)]))
+        programs = [
+            build_command(r.command, CommandSettings(*(getattr(r, s) for s in SETTING_COLUMNS)))
+            for r in configs.itertuples()
+        ]
+        return cls(table, configs, np.asarray(config_of_obs, dtype=np.int64), programs)
+
+    def subset(self, mask: np.ndarray | pd.Series) -> Observations:
+        """Observations restricted to the jumps where ``mask`` is true."""
+        return Observations.from_table(self.table[np.asarray(mask)])
+
+    @property
+    def n_obs(self) -> int:
+        """Number of jumps."""
+        return len(self.table)
+
+    @property
+    def phis(self) -> np.ndarray:
+        """Sorted distinct volume fractions."""
+        return np.unique(self.table["phi"].to_numpy(dtype=float))
+
+    @property
+    def height_mm(self) -> np.ndarray:
+        """Measured heights [mm]."""
+        return self.table["height_mm"].to_numpy(dtype=float)
+
+
+@dataclass(frozen=True)
+class _Coordinate:
+    """One sampled coordinate: a parameter (or polynomial coefficient) with its prior."""
+
+    name: str  # e.g. "k", "k:c1", "sigma_mm[0.592]"
+    parameter: str  # physical parameter it belongs to
+    prior: Prior
+    order: int = 0  # polynomial order in quadratic mode
+    phi: float | None = None  # for per-phi noise
+
+
+class JumpModel:
+    """Log-posterior of jump heights for a force law.
+
+    Parameters
+    ----------
+    observations : Observations
+        The data.
+    experiment : Experiment
+        Robot, command defaults and ``phi_c``.
+    terms : sequence of str
+        Force terms to fit (``depth`` is always included); parameters of other terms take
+        their ``absent`` value unless given in ``fixed``.
+    priors : mapping of str to Prior, optional
+        Priors per parameter (defaults: :func:`granbayes.priors.default_priors`).
+    phi_mode : {"shared", "quadratic"}
+        Parametrisation across volume fractions (module docstring).
+    noise : {"normal", "student_t"}
+        Noise family.
+    nu : float
+        Degrees of freedom of the Student-t noise.
+    sigma_mode : {"per_phi", "global"}
+        Whether the scatter is fitted per volume fraction or once.
+    fixed : mapping of str to float, optional
+        Values of parameters that are not fitted (override ``absent``).
+    options : SolverOptions, optional
+        Integrator settings.
+    n_threads : int, optional
+        numba threads for the simulator.
+    """
+
+    def __init__(
+        self,
+        observations: Observations,
+        experiment: Experiment,
+        terms: Sequence[str],
+        *,
+        priors: Mapping[str, Prior] | None = None,
+        phi_mode: str = "shared",
+        noise: str = "normal",
+        nu: float = 4.0,
+        sigma_mode: str = "per_phi",
+        fixed: Mapping[str, float] | None = None,
+        options: SolverOptions | None = None,
+        n_threads: int | None = None,
+    ) -> None:
+        if phi_mode not in ("shared", "quadratic"):
+            raise ValueError(f"phi_mode must be 'shared' or 'quadratic', got {phi_mode!r}")
+        if noise not in ("normal", "student_t"):
+            raise ValueError(f"noise must be 'normal' or 'student_t', got {noise!r}")
+        if sigma_mode not in ("per_phi", "global"):
+            raise ValueError(f"sigma_mode must be 'per_phi' or 'global', got {sigma_mode!r}")
+        if not nu > 0:
+            raise ValueError("nu must be > 0")
+        self.obs = observations
+        self.experiment = experiment
+        self.terms = terms_of(terms)
+        self.priors = dict(priors if priors is not None else default_priors())
+        self.phi_mode = phi_mode
+        self.noise = noise
+        self.nu = float(nu)
+        self.sigma_mode = sigma_mode
+        self.fixed = dict(fixed or {})
+        self.options = options or SolverOptions()
+        self.n_threads = n_threads
+        self.parameters = tuple(p.name for t in self.terms for p in TERMS[t].parameters)
+        self._phis = observations.phis
+        self._x_config = observations.configs["phi"].to_numpy(float) - experiment.phi_c
+        self._x_phis = self._phis - experiment.phi_c
+        self._coords = self._build_coordinates()
+        obs_phi = observations.table["phi"].to_numpy(float)
+        self._phi_index_of_obs = np.searchsorted(self._phis, obs_phi)
+        self._y = observations.height_mm
+
+    # ------------------------------------------------------------------------------------
+    def _build_coordinates(self) -> list[_Coordinate]:
+        coords: list[_Coordinate] = []
+        span = float(np.max(np.abs(self._x_phis))) if self._x_phis.size else 0.0
+        for name in self.parameters:
+            prior = self.priors[name]
+            if self.phi_mode == "shared":
+                coords.append(_Coordinate(name, name, prior))
+                continue
+            coords.append(_Coordinate(f"{name}:c0", name, prior, order=0))
+            lo, hi = prior.bounds_u
+            width = hi - lo
+            scale = max(span, 0.005)
+            for order in (1, 2):
+                bound = width / scale**order
+                coef_prior = Prior("uniform", -bound, bound, unit=f"{prior.unit} per phi^{order}")
+                coords.append(_Coordinate(f"{name}:c{order}", name, coef_prior, order=order))
+        sigma_prior = self.priors["sigma_mm"]
+        if self.sigma_mode == "global":
+            coords.append(_Coordinate("sigma_mm", "sigma_mm", sigma_prior))
+        else:
+            coords.extend(
+                _Coordinate(f"sigma_mm[{phi:g}]", "sigma_mm", sigma_prior, phi=float(phi))
+                for phi in self._phis
+            )
+        return coords
+
+    @property
+    def coordinate_names(self) -> list[str]:
+        """Names of the sampled coordinates, in column order."""
+        return [c.name for c in self._coords]
+
+    @property
+    def ndim(self) -> int:
+        """Number of sampled coordinates."""
+        return len(self._coords)
+
+    @property
+    def phis(self) -> np.ndarray:
+        """Volume fractions present in the data."""
+        return self._phis
+
+    def log_prior(self, u: np.ndarray) -> np.ndarray:
+        """Log prior density of walker positions ``u`` (shape (n, ndim)) [nats]."""
+        u = np.atleast_2d(u)
+        lp = np.zeros(u.shape[0])
+        for j, c in enumerate(self._coords):
+            lp += c.prior.logpdf_u(u[:, j])
+        if self.phi_mode == "quadratic":  # the implied values must respect the bounds
+            values = self._parameter_u(u, self._x_phis)
+            for name in self.parameters:
+                lo, hi = self.priors[name].bounds_u
+                v = values[name]
+                lp[np.any((v < lo) | (v > hi), axis=1)] = -np.inf
+        return lp
+
+    def _parameter_u(self, u: np.ndarray, x: np.ndarray) -> dict[str, np.ndarray]:
+        """Parameters in sampling coordinates at offsets ``x = phi - phi_c``: (n, len(x))."""
+        out: dict[str, np.ndarray] = {}
+        for j, c in enumerate(self._coords):
+            if c.parameter == "sigma_mm":
+                continue
+            term = u[:, j : j + 1] * (x[None, :] ** c.order)
+            out[c.parameter] = out[c.parameter] + term if c.parameter in out else term
+        return out
+
+    def parameter_values(self, u: np.ndarray, phis: np.ndarray | None = None) -> dict:
+        """Physical parameter values [SI] at volume fractions ``phis``.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Walker positions.
+        phis : ndarray, optional
+            Volume fractions (default: those of the data).
+
+        Returns
+        -------
+        dict of str to ndarray, shape (n, len(phis))
+            Force parameters and ``sigma_mm`` (sigma is NaN at phis it was not fitted for).
+        """
+        u = np.atleast_2d(u)
+        phis = self._phis if phis is None else np.asarray(phis, float)
+        x = phis - self.experiment.phi_c
+        vals = {name: self.priors[name].to_value(v) for name, v in self._parameter_u(u, x).items()}
+        vals["sigma_mm"] = self._sigma_at(u, phis)
+        return vals
+
+    def _sigma_at(self, u: np.ndarray, phis: np.ndarray) -> np.ndarray:
+        sig = np.full((u.shape[0], len(phis)), np.nan)
+        for j, c in enumerate(self._coords):
+            if c.parameter != "sigma_mm":
+                continue
+            value = c.prior.to_value(u[:, j])
+            for i, phi in enumerate(phis):
+                if c.phi is None or math.isclose(c.phi, phi, abs_tol=1e-12):
+                    sig[:, i] = value
+        return sig
+
+    # ------------------------------------------------------------------------------------
+    def predict(
+        self,
+        u: np.ndarray,
+        observations: Observations | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Simulated heights [mm] for every walker and configuration.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Walker positions.
+        observations : Observations, optional
+            Configurations to predict (default: the model's data). Their volume fractions
+            must be ones the model can evaluate (any phi in quadratic mode).
+
+        Returns
+        -------
+        heights_mm : ndarray, shape (n, n_configs)
+        ok : ndarray of bool, shape (n,)
+            Whether every simulation of the walker succeeded.
+        """
+        u = np.atleast_2d(u)
+        obs = observations or self.obs
+        x = obs.configs["phi"].to_numpy(float) - self.experiment.phi_c
+        n, m = u.shape[0], len(obs.configs)
+        if self.phi_mode == "shared":
+            x_eval = np.zeros(1)
+        else:
+            x_eval = x
+        values = {
+            name: self.priors[name].to_value(v) for name, v in self._parameter_u(u, x_eval).items()
+        }
+        params: dict[str, np.ndarray] = {}
+        for p in PARAMETERS:
+            if p.name in values:
+                params[p.name] = np.broadcast_to(values[p.name], (n, m)).reshape(-1)
+            elif p.name in self.fixed:
+                params[p.name] = np.full(n * m, float(self.fixed[p.name]))
+        phi = np.broadcast_to(obs.configs["phi"].to_numpy(float), (n, m)).reshape(-1)
+        rows = build_rows(self.experiment.robot, phi, params)
+        index = np.tile(np.arange(m), n)
+        res = simulate_rows(
+            rows, obs.programs, index, options=self.options, n_threads=self.n_threads
+        )
+        heights = res.height_mm.reshape(n, m)
+        ok = np.all(res.ok.reshape(n, m), axis=1)
+        return heights, ok
+
+    def log_likelihood(self, u: np.ndarray, heights_mm: np.ndarray) -> np.ndarray:
+        """Pointwise log-likelihood of the data given simulated config heights.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Walker positions (for the noise parameters).
+        heights_mm : ndarray, shape (n, n_configs)
+            Simulated heights.
+
+        Returns
+        -------
+        ndarray, shape (n, n_obs)
+        """
+        mean = heights_mm[:, self.obs.config_of_obs]
+        sigma = self._sigma_at(np.atleast_2d(u), self._phis)[:, self._phi_index_of_obs]
+        r = (self._y[None, :] - mean) / sigma
+        if self.noise == "normal":
+            return -0.5 * r * r - np.log(sigma) - 0.5 * math.log(2.0 * math.pi)
+        nu = self.nu
+        const = gammaln(0.5 * (nu + 1)) - gammaln(0.5 * nu) - 0.5 * math.log(nu * math.pi)
+        return const - np.log(sigma) - 0.5 * (nu + 1) * np.log1p(r * r / nu)
+
+    def __call__(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Log-posterior and pointwise log-likelihood of walker positions.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Walker positions in sampling coordinates.
+
+        Returns
+        -------
+        log_prob : ndarray, shape (n,)
+            Log prior + log likelihood; ``-inf`` outside the prior or if a simulation
+            failed.
+        log_lik : ndarray, shape (n, n_obs)
+            Pointwise log-likelihood (``-inf`` rows where ``log_prob`` is ``-inf``).
+        """
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        lp = self.log_prior(u)
+        loglik = np.full((u.shape[0], self.obs.n_obs), -np.inf)
+        good = np.isfinite(lp)
+        if np.any(good):
+            heights, ok = self.predict(u[good])
+            ll = self.log_likelihood(u[good], heights)
+            ll[~ok] = -np.inf
+            loglik[good] = ll
+            total = ll.sum(axis=1)
+            total[~np.isfinite(total)] = -np.inf
+            lp[good] = lp[good] + total
+        return lp, loglik
+
+    def sample_prior(self, rng: np.random.Generator, size: int) -> np.ndarray:
+        """Draw walker positions from the prior (quadratic mode: bound-respecting)."""
+        out = np.empty((0, self.ndim))
+        for _ in range(200):
+            draw = np.column_stack([c.prior.sample_u(rng, 4 * size) for c in self._coords])
+            if self.phi_mode == "quadratic":  # start near constant laws
+                for j, c in enumerate(self._coords):
+                    if c.order > 0:
+                        draw[:, j] *= 0.05
+            draw = draw[np.isfinite(self.log_prior(draw))]
+            out = np.concatenate([out, draw])
+            if len(out) >= size:
+                return out[:size]
+        raise RuntimeError("could not draw from the prior within its bounds")

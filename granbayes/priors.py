@@ -1,0 +1,241 @@
+"""Priors: bounded, physically motivated, one per parameter, overridable from TOML.
+
+Every prior is proper and bounded. Scale parameters that span decades (stiffnesses, the
+unloading ratio, the noise) are log-uniform; coefficients that may vanish (drag, added
+mass, viscous, compaction) are uniform from zero. The sampler works in *sampling
+coordinates*: ``log(value)`` for log-uniform priors, the value itself otherwise, and the
+prior density is expressed in those coordinates (the Jacobian is included), so the
+sampler never needs to know which is which.
+
+Override in a TOML file passed as ``granbayes fit --priors FILE``::
+
+    [k]
+    dist = "loguniform"   # "uniform" | "loguniform" | "normal" | "lognormal"
+    lower = 500.0
+    upper = 20000.0
+    # normal/lognormal also take mu, sigma (lognormal: of log(value)); bounds truncate.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .forces import PARAMETERS
+
+__all__ = ["Prior", "default_priors", "load_priors", "NOISE_PARAMETERS"]
+
+_DISTS = ("uniform", "loguniform", "normal", "lognormal")
+
+
+@dataclass(frozen=True)
+class Prior:
+    """A bounded prior on one scalar parameter.
+
+    Parameters
+    ----------
+    dist : {"uniform", "loguniform", "normal", "lognormal"}
+        Family; normal and lognormal are truncated to ``[lower, upper]``.
+    lower, upper : float
+        Bounds in the parameter's units (``lower > 0`` for log families).
+    mu, sigma : float, optional
+        Location and scale (of ``log(value)`` for lognormal).
+    unit : str
+        Unit, for reports.
+    why : str
+        The physical motivation, for reports.
+    """
+
+    dist: str
+    lower: float
+    upper: float
+    mu: float | None = None
+    sigma: float | None = None
+    unit: str = ""
+    why: str = ""
+
+    def __post_init__(self) -> None:
+        if self.dist not in _DISTS:
+            raise ValueError(f"prior dist must be one of {_DISTS}, got {self.dist!r}")
+        if not (math.isfinite(self.lower) and math.isfinite(self.upper)):
+            raise ValueError("prior bounds must be finite")
+        if not self.lower < self.upper:
+            raise ValueError(f"prior needs lower < upper, got {self.lower} >= {self.upper}")
+        if self.log_scale and self.lower <= 0:
+            raise ValueError(f"{self.dist} prior needs lower > 0")
+        if self.dist in ("normal", "lognormal") and (self.mu is None or not self.sigma):
+            raise ValueError(f"{self.dist} prior needs mu and sigma > 0")
+
+    @property
+    def log_scale(self) -> bool:
+        """Whether the sampling coordinate is ``log(value)``."""
+        return self.dist in ("loguniform", "lognormal")
+
+    @property
+    def bounds_u(self) -> tuple[float, float]:
+        """Bounds in sampling coordinates."""
+        if self.log_scale:
+            return math.log(self.lower), math.log(self.upper)
+        return self.lower, self.upper
+
+    def to_value(self, u: np.ndarray) -> np.ndarray:
+        """Sampling coordinate -> parameter value."""
+        return np.exp(u) if self.log_scale else np.asarray(u, dtype=float)
+
+    def to_u(self, value: np.ndarray) -> np.ndarray:
+        """Parameter value -> sampling coordinate."""
+        return np.log(value) if self.log_scale else np.asarray(value, dtype=float)
+
+    def logpdf_u(self, u: np.ndarray) -> np.ndarray:
+        """Log density in sampling coordinates (unnormalised for the truncated families).
+
+        Returns ``-inf`` outside the bounds.
+        """
+        u = np.asarray(u, dtype=float)
+        lo, hi = self.bounds_u
+        inside = (u >= lo) & (u <= hi)
+        if self.dist in ("uniform", "loguniform"):
+            out = np.full(u.shape, -math.log(hi - lo))
+        else:
+            z = (u - self.mu) / self.sigma
+            out = -0.5 * z * z
+        return np.where(inside, out, -np.inf)
+
+    def sample_u(self, rng: np.random.Generator, size: int) -> np.ndarray:
+        """Draw in sampling coordinates (rejection for the truncated families)."""
+        lo, hi = self.bounds_u
+        if self.dist in ("uniform", "loguniform"):
+            return rng.uniform(lo, hi, size)
+        out = np.empty(0)
+        while out.size < size:
+            draw = rng.normal(self.mu, self.sigma, 4 * size + 16)
+            out = np.concatenate([out, draw[(draw >= lo) & (draw <= hi)]])
+        return out[:size]
+
+    def describe(self) -> str:
+        """One-line description for reports."""
+        extra = "" if self.mu is None else f", mu={self.mu:g}, sigma={self.sigma:g}"
+        return f"{self.dist}[{self.lower:g}, {self.upper:g}]{extra} {self.unit}".strip()
+
+
+#: Noise-model parameters (not force terms).
+NOISE_PARAMETERS = ("sigma_mm",)
+
+_DEFAULTS: dict[str, Prior] = {
+    "k": Prior(
+        "loguniform",
+        200.0,
+        5e4,
+        unit="N/m",
+        why="poppy seeds under a 3.5 cm foot: 1e3-1e4 N/m, two decades of room",
+    ),
+    "c_d": Prior(
+        "uniform",
+        0.0,
+        300.0,
+        unit="kg/m",
+        why="rho_grain * foot area ~ 4 kg/m per unit drag coefficient; generous",
+    ),
+    "kappa": Prior("uniform", 0.0, 3.0, unit="-", why="0: no cone; 1: full jammed cone"),
+    "k2": Prior(
+        "uniform",
+        0.0,
+        1e6,
+        unit="N/m^2",
+        why="stiffening that at most doubles k within ~5 cm of depth",
+    ),
+    "b": Prior(
+        "uniform",
+        0.0,
+        200.0,
+        unit="N s/m",
+        why="linear damping up to a critically damped foot on the bed",
+    ),
+    "c_comp": Prior(
+        "uniform",
+        0.0,
+        3.0,
+        unit="-",
+        why="compaction raises the stiffness below the first crater <= 4x",
+    ),
+    "r_unload": Prior(
+        "loguniform",
+        1.0,
+        200.0,
+        unit="-",
+        why="1: elastic bed; >>1: plastic bed that keeps its crater",
+    ),
+    "sigma_mm": Prior(
+        "loguniform", 0.3, 30.0, unit="mm", why="trial-to-trial scatter of jump heights"
+    ),
+}
+
+assert set(_DEFAULTS) == {p.name for p in PARAMETERS} | set(NOISE_PARAMETERS)
+
+
+def default_priors() -> dict[str, Prior]:
+    """The default prior of every force-term and noise parameter."""
+    return dict(_DEFAULTS)
+
+
+def load_priors(path: str | Path, base: Mapping[str, Prior] | None = None) -> dict[str, Prior]:
+    """Read prior overrides from a TOML file (one table per parameter; no code executed).
+
+    Parameters
+    ----------
+    path : str or Path
+        TOML file.
+    base : mapping, optional
+        Priors to override (default: :func:`default_priors`).
+
+    Returns
+    -------
+    dict of str to Prior
+    """
+    path = Path(path)
+    priors = dict(base if base is not None else default_priors())
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("no such file", file=path) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"malformed TOML: {exc}", file=path) from None
+    for name, table in doc.items():
+        if name not in priors:
+            raise InputError(
+                f"unknown parameter; expected one of {', '.join(priors)}", file=path, column=name
+            )
+        if not isinstance(table, dict):
+            raise InputError("expected a table like [k] dist=...", file=path, column=name)
+        allowed = {"dist", "lower", "upper", "mu", "sigma"}
+        for key, value in table.items():
+            if key not in allowed:
+                raise InputError(
+                    f"unknown key; expected one of {sorted(allowed)}",
+                    file=path,
+                    column=f"{name}.{key}",
+                )
+            if key == "dist":
+                ok = isinstance(value, str)
+            else:
+                ok = isinstance(value, int | float) and not isinstance(value, bool)
+            if not ok:
+                raise InputError(
+                    "expected a string" if key == "dist" else "expected a number",
+                    file=path,
+                    column=f"{name}.{key}",
+                )
+        try:
+            priors[name] = replace(
+                priors[name],
+                **{k: (v if k == "dist" else float(v)) for k, v in table.items()},
+            )
+        except ValueError as exc:
+            raise InputError(str(exc), file=path, column=name) from None
+    return priors

@@ -1,0 +1,336 @@
+"""Reports of fits: tables, figures and a Markdown summary written into a folder.
+
+Figures are built with matplotlib's object API (no pyplot state), corner plots with
+``corner`` (>= 2.3) from plain arrays, and trace/rank plots through the ArviZ adapter
+(:mod:`granbayes.datatree`).
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+from matplotlib.figure import Figure
+
+from . import datatree as gdt
+from .experiment import COMMAND_NAMES
+from .forces import PARAMETERS
+
+__all__ = [
+    "load_truth",
+    "plot_corner",
+    "plot_predictive",
+    "plot_parameters_vs_phi",
+    "write_fit_report",
+]
+
+_UNITS = {p.name: p.unit for p in PARAMETERS} | {"sigma_mm": "mm"}
+_LABELS = {
+    "k": "k [N/m]",
+    "c_d": "c_d [kg/m]",
+    "kappa": "κ [-]",
+    "k2": "k2 [N/m²]",
+    "b": "b [N s/m]",
+    "c_comp": "c_comp [-]",
+    "r_unload": "r_unload [-]",
+    "sigma_mm": "σ [mm]",
+}
+_COLORS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00")
+
+
+def load_truth(path: str | Path) -> dict[float, dict[str, float]]:
+    """Read a ``truth.toml`` (as written by ``data/generate_reference.py``).
+
+    Returns
+    -------
+    dict of float to dict
+        Per volume fraction, the true parameter values (and ``sigma_mm``).
+    """
+    doc = tomllib.loads(Path(path).read_text())
+    return {float(phi): dict(v) for phi, v in doc.get("phi", {}).items()}
+
+
+def _label(name: str) -> str:
+    return _LABELS.get(name, f"{name} [{_UNITS.get(name, '')}]")
+
+
+def plot_corner(
+    dt: xr.DataTree, phi: float, var_names: list[str], truth: Mapping[str, float] | None = None
+) -> Figure:
+    """Corner plot of the posterior at one volume fraction, with the truth if known.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        Fit result.
+    phi : float
+        Volume fraction.
+    var_names : list of str
+        Parameters to show.
+    truth : mapping, optional
+        True values (synthetic data) drawn as lines.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import corner
+
+    post = dt.posterior.to_dataset().sel(phi=phi)
+    names = [n for n in var_names if n in post and np.all(np.isfinite(post[n].values))]
+    samples = np.column_stack([post[n].values.ravel() for n in names])
+    fig = Figure(figsize=(2.4 * len(names) + 1, 2.4 * len(names) + 1))
+    truths = None if truth is None else [truth.get(n, None) for n in names]
+    corner.corner(
+        samples,
+        fig=fig,
+        labels=[_label(n) for n in names],
+        quantiles=[0.05, 0.5, 0.95],
+        show_titles=True,
+        title_fmt=".3g",
+        truths=truths,
+        truth_color="#D55E00",
+        bins=30,
+        smooth=0.8,
+    )
+    title = f"Posterior at φ = {phi:g} (lines: 5%, 50%, 95%)"
+    if truth is not None:
+        title += "; orange: synthetic truth"
+    fig.suptitle(title, y=1.0)
+    return fig
+
+
+def plot_predictive(dt: xr.DataTree, ci_prob: float = gdt.CI_PROB) -> Figure:
+    """Jump height vs volume fraction per command: data and posterior predictive bands.
+
+    One panel per command; one colour per actuation frequency. Points: measured jumps;
+    dark band: the simulated height (force-law uncertainty); light band: a new jump
+    (simulated height plus scatter); both ``ci_prob`` equal-tailed.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    obs = dt.observed_data.to_dataset()
+    pp = dt.posterior_predictive.to_dataset()
+    phi = obs["phi"].values
+    command = obs["command"].values
+    freq = obs["freq_hz"].values if "freq_hz" in obs.coords else np.zeros(len(phi))
+    commands = [c for c in COMMAND_NAMES if c in set(command)]
+    freqs = np.unique(freq)
+    q = [(1 - ci_prob) / 2, 0.5, 1 - (1 - ci_prob) / 2]
+    fig = Figure(figsize=(3.3 * len(commands), 3.6), layout="constrained")
+    axes = fig.subplots(1, len(commands), sharey=True, squeeze=False)[0]
+    rep = pp["height_mm"].values.reshape(-1, len(phi))
+    sim = pp["height_sim_mm"].values.reshape(-1, len(phi))
+    phis = np.unique(phi)
+    dphi = 0.0015 * (len(freqs) > 1)
+    for ax, cmd in zip(axes, commands, strict=True):
+        for j, f in enumerate(freqs):
+            color = _COLORS[j % len(_COLORS)]
+            off = (j - (len(freqs) - 1) / 2) * dphi
+            bands = []
+            for p in phis:
+                sel = (command == cmd) & (freq == f) & (phi == p)
+                if not np.any(sel):
+                    bands.append((np.nan,) * 5)
+                    continue
+                i = np.flatnonzero(sel)[0]
+                lo_r, _, hi_r = np.quantile(rep[:, i], q)
+                lo_s, med, hi_s = np.quantile(sim[:, i], q)
+                bands.append((lo_r, lo_s, med, hi_s, hi_r))
+            b = np.array(bands)
+            ax.fill_between(phis + off, b[:, 0], b[:, 4], color=color, alpha=0.15, lw=0)
+            ax.fill_between(phis + off, b[:, 1], b[:, 3], color=color, alpha=0.4, lw=0)
+            ax.plot(phis + off, b[:, 2], color=color, lw=1.2, label=f"{f:g} Hz")
+            sel = (command == cmd) & (freq == f)
+            ax.plot(
+                phi[sel] + off,
+                obs["height_mm"].values[sel],
+                "o",
+                ms=3,
+                color=color,
+                mec="k",
+                mew=0.3,
+            )
+        ax.set_title(cmd.replace("_", " "))
+        ax.set_xlabel("volume fraction φ [-]")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("jump height H [mm]")
+    axes[0].legend(title="actuation", fontsize=8)
+    fig.suptitle(
+        f"Posterior predictive check: points = measured jumps; dark band = simulated height, "
+        f"light band = new jump ({ci_prob:.0%} equal-tailed)",
+        fontsize=10,
+    )
+    return fig
+
+
+def plot_parameters_vs_phi(
+    dt: xr.DataTree,
+    var_names: list[str],
+    phi_c: float,
+    truth: Mapping[float, Mapping[str, float]] | None = None,
+    ci_prob: float = gdt.CI_PROB,
+) -> Figure:
+    """Posterior median and ``ci_prob`` interval of each parameter against ``phi - phi_c``."""
+    post = dt.posterior.to_dataset()
+    names = [n for n in var_names if n in post]
+    phis = post["phi"].values
+    x = phis - phi_c
+    fig = Figure(figsize=(3.4 * len(names), 3.2), layout="constrained")
+    axes = fig.subplots(1, len(names), squeeze=False)[0]
+    q = [(1 - ci_prob) / 2, 0.5, 1 - (1 - ci_prob) / 2]
+    for ax, n in zip(axes, names, strict=True):
+        v = post[n].values.reshape(-1, len(phis))
+        lo, med, hi = np.nanquantile(v, q, axis=0)
+        ax.errorbar(
+            x,
+            med,
+            yerr=[med - lo, hi - med],
+            fmt="o",
+            color=_COLORS[0],
+            capsize=3,
+            label=f"posterior ({ci_prob:.0%} ETI)",
+        )
+        if truth:
+            t = [truth.get(float(p), {}).get(n, np.nan) for p in phis]
+            ax.plot(x, t, "x", color=_COLORS[1], ms=8, mew=2, label="synthetic truth")
+        ax.axvline(0.0, color="0.5", lw=0.8, ls=":")
+        ax.set_xlabel("φ − φ_c [-]")
+        ax.set_ylabel(_label(n))
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    return fig
+
+
+def _markdown(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
+    cols = list(df.columns)
+    lines = ["| " + " | ".join(str(c) for c in cols) + " |", "|" + "---|" * len(cols)]
+    for row in df.itertuples(index=False):
+        cells = []
+        for v in row:
+            if isinstance(v, float | np.floating):
+                cells.append(format(float(v), floatfmt))
+            else:
+                cells.append(str(v))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def write_fit_report(
+    result,
+    out: Path,
+    *,
+    truth: Mapping[float, Mapping[str, float]] | None = None,
+    uniqueness: pd.DataFrame | None = None,
+    diagnostics_plots: bool = True,
+) -> list[Path]:
+    """Write the posterior, tables and figures of a fit into ``out``.
+
+    Parameters
+    ----------
+    result : granbayes.fit.FitResult
+        The fit.
+    out : Path
+        Existing folder.
+    truth : mapping, optional
+        Synthetic truth per volume fraction (overlaid on figures, compared in the summary).
+    uniqueness : pandas.DataFrame, optional
+        Output of :func:`granbayes.fit.compare_commands`.
+    diagnostics_plots : bool
+        Whether to draw trace and rank plots.
+
+    Returns
+    -------
+    list of Path
+        Files written.
+    """
+    out = Path(out)
+    dt = result.datatree
+    written: list[Path] = []
+    gdt.write_datatree(dt, out / "posterior.nc")
+    written.append(out / "posterior.nc")
+    names = [*result.parts[0].model.parameters, "sigma_mm"]
+    summary = gdt.summary_table(dt, var_names=names).reset_index(names="parameter")
+    if truth:
+        summary["truth"] = [_truth_of(truth, label) for label in summary["parameter"]]
+    summary.to_csv(out / "summary.csv", index=False)
+    diag = result.diagnostics()
+    diag.to_csv(out / "diagnostics.csv", index=False)
+    loo = gdt.loo(dt)
+    phi_c = json.loads(dt.attrs["experiment"])["phi_c"]
+    lines = [
+        "# granbayes fit",
+        "",
+        f"- data: {dt.attrs.get('data_source', '')} (sha256 {dt.attrs['data_sha256'][:12]}…)",
+        f"- terms: {', '.join(result.config.terms)}; parametrisation across φ: "
+        f"{result.config.phi_mode}; noise: {result.config.noise}",
+        f"- seed: {result.seed}; intervals: {gdt.CI_PROB:.0%} equal-tailed (ETI)",
+        f"- PSIS-LOO: elpd = {loo['elpd']:.1f} ± {loo['se']:.1f}, p_loo = {loo['p']:.1f}, "
+        f"max Pareto k = {loo['max_pareto_k']:.2f} ({loo['n_bad_k']} jumps with k > 0.7)",
+        "",
+    ]
+    if result.warnings:
+        lines += ["**Warnings**", ""] + [f"- {w}" for w in result.warnings] + [""]
+    lines += ["## Posterior summary", "", _markdown(summary), "", "## Sampler", ""]
+    lines += [
+        _markdown(
+            diag[
+                [
+                    "run",
+                    "n_walkers",
+                    "n_steps",
+                    "tau_max",
+                    "steps_over_tau",
+                    "acceptance",
+                    "converged",
+                ]
+            ]
+        ),
+        "",
+    ]
+    if uniqueness is not None:
+        uniqueness.to_csv(out / "uniqueness.csv", index=False)
+        lines += [
+            "## One force law for every jump?",
+            "",
+            "Per volume fraction: one parameter set shared by the five commands against "
+            "separate parameters per command, by PSIS-LOO (`elpd_diff` = shared − "
+            "per-command; the shared law is preferred unless per-command is better by more "
+            "than 2 SE). `*_intervals_overlap`: whether the per-command "
+            f"{gdt.CI_PROB:.0%} intervals of a parameter share a common value.",
+            "",
+            _markdown(uniqueness),
+            "",
+        ]
+    figs: dict[str, Figure] = {"predictive.png": plot_predictive(dt)}
+    force_names = list(result.parts[0].model.parameters)
+    figs["parameters_vs_phi.png"] = plot_parameters_vs_phi(dt, names, phi_c, truth)
+    for phi in dt.posterior["phi"].values:
+        t = truth.get(float(phi)) if truth else None
+        figs[f"corner_phi{phi:g}.png"] = plot_corner(dt, float(phi), names, t)
+    for name, fig in figs.items():
+        fig.savefig(out / name, dpi=120, bbox_inches="tight")
+        written.append(out / name)
+    if diagnostics_plots:
+        written += gdt.plot_diagnostics(dt, force_names, out)
+    lines += ["## Figures", ""] + [f"![{p.stem}]({p.name})" for p in written if p.suffix == ".png"]
+    summary_md = out / "summary.md"
+    summary_md.write_text("\n".join(lines) + "\n")
+    written += [out / "summary.csv", out / "diagnostics.csv", summary_md]
+    return written
+
+
+def _truth_of(truth: Mapping[float, Mapping[str, float]], label: str) -> float:
+    name, _, rest = label.partition("[")
+    try:
+        phi = float(rest.rstrip("]"))
+    except ValueError:
+        return float("nan")
+    return float(truth.get(phi, {}).get(name, np.nan))

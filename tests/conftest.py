@@ -1,0 +1,33 @@
+"""Shared test configuration.
+
+Hypothesis runs with ``deadline=None`` (the first call of the compiled integrator triggers a
+numba compilation that takes seconds) and ``derandomize=True`` (every run draws the same
+examples, so a failure is reproducible in CI and locally), with 25 examples per property to
+keep the suite fast. ``HYPOTHESIS_PROFILE=thorough`` draws 500 fresh random examples per
+property for a deeper local search.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from hypothesis import settings
+
+settings.register_profile(
+    "granbayes", deadline=None, derandomize=True, database=None, max_examples=25
+)
+settings.register_profile("thorough", deadline=None, max_examples=500, database=None)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "granbayes"))
+
+#: Converged reference heights shared by every simulator of the project (a batch table).
+REFERENCE_HEIGHTS = Path(__file__).resolve().parents[2] / "shared" / "reference-heights.csv"
+
+
+@pytest.fixture(scope="session")
+def reference_heights_path() -> Path:
+    """Path of ``shared/reference-heights.csv`` (skips the test if it is absent)."""
+    if not REFERENCE_HEIGHTS.is_file():
+        pytest.skip(f"{REFERENCE_HEIGHTS} not found (shared/ must sit beside the repository)")
+    return REFERENCE_HEIGHTS

@@ -1,0 +1,403 @@
+"""End-to-end tests of the ``granbayes`` command line (in-process and as a real program)."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from granbayes import __version__
+from granbayes.cli import EXIT_FAILED_JUMP, EXIT_INPUT, EXIT_OK, atomic_path, main
+from granbayes.experiment import COMMAND_NAMES, load_experiment
+from granbayes.simulator import simulate
+
+REFERENCE_HEIGHTS = Path(__file__).resolve().parents[2] / "shared" / "reference-heights.csv"
+
+TRAJECTORY_COLUMNS = [
+    "t_s",
+    "x_rod_mm",
+    "x_foot_mm",
+    "v_rod_m_s",
+    "v_foot_m_s",
+    "depth_mm",
+    "z_max_mm",
+    "ground_force_N",
+    "added_mass_kg",
+    "mode",
+    "alpha_mm",
+]
+
+ONE_JUMP = ["simulate", "--command", "single", "--phi", "0.612", "--param", "k=3000"]
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def write(path: Path, text: str) -> Path:
+    """Write ``text`` to ``path`` and return the path."""
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    """Run ``granbayes argv`` in-process; return exit code, stdout and stderr."""
+    code = main(list(argv))
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def assert_one_error_line(code: int, out: str, err: str, *fragments: str) -> str:
+    """Check exit code 2, nothing on stdout and one error line containing ``fragments``."""
+    assert code == EXIT_INPUT
+    assert out == ""
+    lines = err.splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("granbayes: error: ")
+    assert "Traceback" not in err
+    for fragment in fragments:
+        assert fragment in lines[0], (fragment, lines[0])
+    return lines[0]
+
+
+def granbayes_program() -> list[str]:
+    """The installed ``granbayes`` console script (or the module, if it is not on disk)."""
+    script = Path(sys.executable).with_name("granbayes")
+    if script.is_file():
+        return [str(script)]
+    found = shutil.which("granbayes")
+    return [found] if found else [sys.executable, "-m", "granbayes.cli"]
+
+
+# ----------------------------------------------------------------------------------------
+# One jump
+# ----------------------------------------------------------------------------------------
+
+
+def test_json_height_matches_simulate(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, *ONE_JUMP, "--param", "c_d=50", "--param", "kappa=0.5", "--json")
+    assert code == EXIT_OK, err
+    record = json.loads(out)  # exactly one JSON object
+    expected = simulate("single", 0.612, {"k": 3000.0, "c_d": 50.0, "kappa": 0.5})
+    assert record["height_mm"] == pytest.approx(float(expected.height_mm[0]), abs=1e-9)
+    assert record["status"] == "ok"
+    assert record["command"] == "single"
+    assert record["phi"] == 0.612
+    assert record["params"] == {"k": 3000.0, "c_d": 50.0, "kappa": 0.5}
+    assert record["effective_params"]["r_unload"] == 20.0
+    assert record["robot"]["m_motor"] == 1.0
+    assert record["command_settings"]["freq_hz"] == 10.0
+
+
+def test_json_uses_the_experiment(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    toml = write(tmp_path / "experiment.toml", "[robot]\nm_motor = 1.5\n[command]\nfreq_hz = 12\n")
+    code, out, _ = run(
+        capsys, *ONE_JUMP[:-2], "--param", "k=5000", "--experiment", str(tmp_path), "--json"
+    )
+    assert code == EXIT_OK
+    record = json.loads(out)
+    expected = simulate("single", 0.612, {"k": 5000.0}, experiment=load_experiment(toml))
+    assert record["height_mm"] == pytest.approx(float(expected.height_mm[0]), abs=1e-9)
+    assert record["robot"]["m_motor"] == 1.5
+    assert record["command_settings"]["freq_hz"] == 12.0
+    default = simulate("single", 0.612, {"k": 5000.0})
+    assert not math.isclose(record["height_mm"], float(default.height_mm[0]))
+
+
+def test_human_line(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(capsys, *ONE_JUMP, "--param", "c_d=50")
+    assert code == EXIT_OK
+    assert err == ""
+    height = float(simulate("single", 0.612, {"k": 3000.0, "c_d": 50.0}).height_mm[0])
+    assert out == f"single at phi=0.612: height {height:.2f} mm (ok)\n"
+
+
+def test_trajectory_csv_and_plot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    csv, png = tmp_path / "traj.csv", tmp_path / "traj.png"
+    code, out, _ = run(
+        capsys,
+        *ONE_JUMP[:2],
+        "stutter",
+        *ONE_JUMP[3:],
+        "--param",
+        "kappa=1",
+        "--trajectory",
+        str(csv),
+        "--plot",
+        str(png),
+        "--json",
+    )
+    assert code == EXIT_OK
+    record = json.loads(out)
+    data = pd.read_csv(csv)
+    assert list(data.columns) == TRAJECTORY_COLUMNS
+    assert data["t_s"].iloc[0] == 0.0
+    assert np.all(np.diff(data["t_s"]) >= 0.0)
+    assert set(data["mode"]) <= {"advancing", "contact", "free"}
+    assert data["added_mass_kg"].max() > 0.0
+    window = data["t_s"] >= 0.05  # the stutter's height window opens at T/2
+    assert data.loc[window, "x_foot_mm"].max() == pytest.approx(record["height_mm"], abs=0.05)
+    np.testing.assert_allclose(data["depth_mm"], -data["x_foot_mm"])
+    assert png.read_bytes()[:8] == PNG_MAGIC
+    assert png.stat().st_size > 20_000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["traj.csv", "traj.png"]
+
+
+def test_failed_jump_exit_code_3(capsys: pytest.CaptureFixture[str]) -> None:
+    # a near-rigid bed that never lets go of the foot exhausts the step budget
+    code, out, _ = run(capsys, *ONE_JUMP[:-1], "k=1e9", "--param", "r_unload=1e6", "--json")
+    assert code == EXIT_FAILED_JUMP
+    record = json.loads(out)
+    assert record["status"].startswith("failed:")
+    assert record["height_mm"] is None
+
+
+def test_version(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(capsys, "--version")
+    assert code == EXIT_OK
+    assert out.strip() == f"granbayes {__version__}"
+
+
+# ----------------------------------------------------------------------------------------
+# Batch mode
+# ----------------------------------------------------------------------------------------
+
+
+@pytest.mark.skipif(not REFERENCE_HEIGHTS.exists(), reason="shared reference table absent")
+def test_batch_reproduces_reference_heights(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out_csv = tmp_path / "out.csv"
+    code, out, err = run(
+        capsys, "simulate", "--batch", str(REFERENCE_HEIGHTS), "--out", str(out_csv)
+    )
+    assert code == EXIT_OK, err
+    assert out == ""
+    assert "already has a height_mm column" in err  # the one-line note
+    reference = pd.read_csv(REFERENCE_HEIGHTS)
+    result = pd.read_csv(out_csv)
+    assert list(result.columns) == [*reference.columns, "status"]
+    assert (result["status"] == "ok").all()
+    pd.testing.assert_frame_equal(
+        result.drop(columns=["height_mm", "status"]), reference.drop(columns="height_mm")
+    )
+    np.testing.assert_allclose(result["height_mm"], reference["height_mm"], rtol=0, atol=0.05)
+
+
+def test_batch_keeps_extra_columns_and_threads(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    table = write(
+        tmp_path / "in.csv",
+        "trial,command,phi,k,c_d,note\n1,single,0.612,3000,50,a\n2,stutter,0.6,4000,,b c\n",
+    )
+    out_csv = tmp_path / "out.csv"
+    code, _, err = run(
+        capsys, "simulate", "--batch", str(table), "--out", str(out_csv), "--threads", "1"
+    )
+    assert code == EXIT_OK
+    assert err == ""
+    result = pd.read_csv(out_csv, keep_default_na=False)
+    columns = ["trial", "command", "phi", "k", "c_d", "note", "height_mm", "status"]
+    assert list(result.columns) == columns
+    assert list(result["note"]) == ["a", "b c"]
+    assert result["c_d"].iloc[1] == ""  # "not given" stays empty
+    expected = simulate("stutter", 0.6, {"k": 4000.0})
+    assert float(result["height_mm"].iloc[1]) == pytest.approx(float(expected.height_mm[0]))
+
+
+# ----------------------------------------------------------------------------------------
+# Bad input: exit code 2, one line naming file, row and column, nothing written
+# ----------------------------------------------------------------------------------------
+
+
+def test_unknown_command_in_batch_row(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    table = write(
+        tmp_path / "bad_rows.csv",
+        "command,phi,k\nsingle,0.6,3000\nstutter,0.6,3000\nhop,0.6,3000\n",
+    )
+    out_csv = tmp_path / "out.csv"
+    code, out, err = run(capsys, "simulate", "--batch", str(table), "--out", str(out_csv))
+    assert_one_error_line(code, out, err, "bad_rows.csv", "row 3", "column 'command'", "hop")
+    assert not out_csv.exists()
+    assert list(tmp_path.iterdir()) == [table]
+
+
+def test_nonfinite_cell_in_batch(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    table = write(tmp_path / "nan_cell.csv", "command,phi,k\nsingle,0.6,3000\nsingle,0.6,inf\n")
+    code, out, err = run(capsys, "simulate", "--batch", str(table), "--out", str(tmp_path / "o"))
+    assert_one_error_line(code, out, err, "nan_cell.csv", "row 2", "column 'k'", "finite")
+
+
+def test_negative_mass_in_toml(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    toml = write(tmp_path / "robot.toml", "[robot]\nm_motor = 1.0\nm_foot = -0.1\n")
+    code, out, err = run(capsys, *ONE_JUMP, "--experiment", str(toml))
+    assert_one_error_line(code, out, err, "robot.toml", "row 3", "column 'robot.m_foot'", "-0.1")
+
+
+def test_malformed_toml(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    write(tmp_path / "experiment.toml", "[robot\nm_motor = 1.0\n")
+    code, out, err = run(capsys, *ONE_JUMP, "--experiment", str(tmp_path), "--json")
+    assert_one_error_line(code, out, err, "experiment.toml", "row 1", "malformed TOML")
+
+
+def test_malformed_csv(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    table = write(tmp_path / "quotes.csv", 'command,phi,k\nsingle,0.6,3000\n"single,0.6,3000\n')
+    code, out, err = run(capsys, "simulate", "--batch", str(table), "--out", str(tmp_path / "o"))
+    assert_one_error_line(code, out, err, "quotes.csv", "malformed CSV")
+
+
+@pytest.mark.parametrize(
+    ("argv", "fragments"),
+    [
+        (["--param", "q=1"], ["--param q=1", "unknown force parameter 'q'"]),
+        (["--param", "cd=1"], ["--param cd=1", "did you mean 'c_d'"]),
+        (["--param", "c_d=-1"], ["--param c_d=-1: c_d must be >= 0 [kg/m], got -1"]),
+        (["--param", "c_d=nan"], ["--param c_d=nan", "finite"]),
+        (["--param", "c_d"], ["--param c_d", "NAME=VALUE"]),
+        (["--param", "c_d=fast"], ["--param c_d=fast", "must be a number"]),
+        (["--param", "k=1"], ["--param k=1", "more than once"]),
+    ],
+)
+def test_bad_param(
+    argv: list[str], fragments: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = run(capsys, *ONE_JUMP, *argv)
+    assert_one_error_line(code, out, err, *fragments)
+
+
+@pytest.mark.parametrize(
+    ("argv", "fragments"),
+    [
+        (["simulate", "--command", "single", "--phi", "0.6"], ["--param k=VALUE is required"]),
+        (["simulate", "--command", "hop", "--phi", "0.6", "--param", "k=1"], ["--command hop"]),
+        (["simulate", "--command", "single", "--phi", "1.5", "--param", "k=1"], ["--phi 1.5"]),
+        (["simulate", "--command", "single", "--phi", "inf", "--param", "k=1"], ["--phi inf"]),
+        (["simulate", "--phi", "0.6", "--param", "k=1"], ["--command is required"]),
+        (["simulate", "--command", "single", "--param", "k=1", "--out", "x"], ["--out"]),
+        (["simulate", "--batch", "in.csv"], ["--batch needs --out"]),
+        (["simulate", "--batch", "in.csv", "--out", "o.csv", "--json"], ["--json"]),
+        (["simulate", "--nonsense"], ["unrecognized arguments: --nonsense"]),
+        (["frobnicate"], ["invalid choice: 'frobnicate'"]),
+        ([], ["required"]),
+    ],
+)
+def test_bad_usage(
+    argv: list[str], fragments: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = run(capsys, *argv)
+    assert_one_error_line(code, out, err, *fragments)
+
+
+def test_missing_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / "nowhere"
+    code, out, err = run(capsys, *ONE_JUMP, "--experiment", str(missing))
+    assert_one_error_line(code, out, err, str(missing), "no such file")
+    code, out, err = run(capsys, *ONE_JUMP, "--trajectory", str(missing / "t.csv"))
+    assert_one_error_line(code, out, err, "--trajectory", "does not exist")
+    code, out, err = run(
+        capsys, "simulate", "--batch", str(missing), "--out", str(tmp_path / "o.csv")
+    )
+    assert_one_error_line(code, out, err, str(missing))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failed_batch_leaves_existing_out_untouched(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out_csv = write(tmp_path / "out.csv", "command,phi,height_mm,status\nsingle,0.6,1.0,ok\n")
+    before = out_csv.read_bytes()
+    table = write(tmp_path / "in.csv", "command,phi,k\nsingle,0.6,3000\nsingle,2.0,3000\n")
+    code, out, err = run(capsys, "simulate", "--batch", str(table), "--out", str(out_csv))
+    assert_one_error_line(code, out, err, "in.csv", "row 2", "column 'phi'")
+    assert out_csv.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.csv", "out.csv"]
+
+
+def test_atomic_path_failure_keeps_old_file(tmp_path: Path) -> None:
+    target = write(tmp_path / "out.csv", "old contents\n")
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_text("half a fi")
+        raise RuntimeError("disk full")
+    assert target.read_text() == "old contents\n"
+    assert list(tmp_path.iterdir()) == [target]
+    with atomic_path(target) as tmp:
+        tmp.write_text("new contents\n")
+    assert target.read_text() == "new contents\n"
+    assert list(tmp_path.iterdir()) == [target]
+
+
+# ----------------------------------------------------------------------------------------
+# The installed program
+# ----------------------------------------------------------------------------------------
+
+
+def test_console_script(tmp_path: Path) -> None:
+    program = granbayes_program()
+    done = subprocess.run(
+        [*program, *ONE_JUMP, "--param", "c_d=50", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert done.returncode == EXIT_OK, done.stderr
+    record = json.loads(done.stdout)
+    expected = simulate("single", 0.612, {"k": 3000.0, "c_d": 50.0})
+    assert record["height_mm"] == pytest.approx(float(expected.height_mm[0]), abs=1e-9)
+
+    bad = write(tmp_path / "bad.csv", "command,phi\nsingle,0.6\nsingle,0.6\nleap,0.6\n")
+    done = subprocess.run(
+        [*program, "simulate", "--batch", str(bad), "--out", str(tmp_path / "out.csv")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert done.returncode == EXIT_INPUT
+    assert done.stdout == ""
+    assert re.fullmatch(
+        r"granbayes: error: .*bad\.csv, row 3, column 'command': unknown command 'leap'.*\n",
+        done.stderr,
+    )
+
+
+# ----------------------------------------------------------------------------------------
+# Demo
+# ----------------------------------------------------------------------------------------
+
+
+def test_demo_writes_its_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out_dir = tmp_path / "demo"
+    code, out, err = run(capsys, "demo", "--out", str(out_dir))
+    assert code == EXIT_OK, err
+    for name in ("jumps.png", "hard_ground.png"):
+        assert (out_dir / name).read_bytes()[:8] == PNG_MAGIC
+    heights = pd.read_csv(out_dir / "heights.csv")
+    assert list(heights["command"]) == list(COMMAND_NAMES)
+    assert (heights["status"] == "ok").all()
+    for row in heights.itertuples():
+        assert f"{row.height_mm:.2f}" in out  # the printed table
+    hard = pd.read_csv(out_dir / "hard_ground.csv")
+    single = hard[hard["command"] == "single"].set_index("freq_hz")["height_mm"]
+    stutter = hard[hard["command"] == "stutter"].set_index("freq_hz")["height_mm"]
+    f0 = 11.03  # sqrt(5760 / 1.2) / (2 pi): single optimum above it, stutter below
+    assert single.idxmax() > f0 > stutter.idxmax()
+    # the demo heights.csv is itself a valid batch input
+    code, _, _ = run(
+        capsys,
+        "simulate",
+        "--batch",
+        str(out_dir / "heights.csv"),
+        "--out",
+        str(tmp_path / "again.csv"),
+    )
+    assert code == EXIT_OK
+    again = pd.read_csv(tmp_path / "again.csv")
+    np.testing.assert_allclose(again["height_mm"], heights["height_mm"])
