@@ -86,6 +86,7 @@ def generate(seed: int = SEED) -> pd.DataFrame:
                             "trial": trial + 1,
                             "height_mm": round(truth + noise[trial], 3),
                             "true_height_mm": round(truth, 4),
+                            "source": f"synthetic: data/generate_reference.py seed={seed}",
                         }
                     )
     return pd.DataFrame(rows)

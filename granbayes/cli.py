@@ -450,6 +450,14 @@ def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
         default=Path("demo-output"),
         help="folder for the figures and tables (created; default: demo-output)",
     )
+    parser.add_argument(
+        "--data",
+        type=Path,
+        default=REFERENCE_DATA,
+        help="experiment folder to fit (default: the synthetic reference data set)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the fit (default 0)")
+    parser.add_argument("--no-fit", action="store_true", help="only the simulations")
 
 
 def _demo_jumps(out: Path, experiment: Experiment) -> None:
@@ -510,17 +518,49 @@ def _demo_hard_ground(out: Path, experiment: Experiment) -> None:
     )
 
 
-def run_demo(out: Path) -> None:
-    """Run the demo: simulate, print a summary and write figures and tables into ``out``.
+#: The shipped SYNTHETIC reference data set (data/generate_reference.py).
+REFERENCE_DATA = Path(__file__).resolve().parents[1] / "data" / "reference"
+
+
+def _demo_fit(out: Path, data: Path, seed: int) -> None:
+    """Fit depth + drag per volume fraction to ``data`` and answer the uniqueness question."""
+    from .experiment import load_jumps
+    from .fit import FitConfig, compare_commands, fit
+    from .report import load_truth, write_fit_report
+
+    experiment = load_experiment(data)
+    table = load_jumps(data, experiment)
+    truth_file = data / "truth.toml"
+    truth = load_truth(truth_file) if truth_file.exists() else None
+    config = FitConfig(terms=("depth", "drag"))
+    print(f"Fitting {config.terms} per volume fraction to {len(table)} jumps in {data} ...")
+    out.mkdir(parents=True, exist_ok=True)
+    result = fit(experiment, table, config, seed=seed, data_source=str(data))
+    print("One force law for all five commands? (PSIS-LOO per volume fraction) ...")
+    uniqueness = compare_commands(experiment, table, result, seed=seed)
+    write_fit_report(result, out, truth=truth, uniqueness=uniqueness)
+    for w in result.warnings:
+        print(f"granbayes: warning: {w}", file=sys.stderr)
+    print((out / "summary.md").read_text())
+
+
+def run_demo(out: Path, data: Path | None = REFERENCE_DATA, seed: int = 0) -> None:
+    """Run the demo: simulate, fit, print summaries and write figures and tables to ``out``.
 
     Writes ``heights.csv`` (the five jumps; a valid ``simulate --batch`` input),
     ``jumps.png`` (:func:`granbayes.plots.plot_jumps`), ``hard_ground.csv`` and
-    ``hard_ground.png`` (:func:`granbayes.plots.plot_hard_ground`).
+    ``hard_ground.png`` (:func:`granbayes.plots.plot_hard_ground`), and, if ``data`` is
+    given, the Bayesian fit of depth + drag to it in ``out/fit`` (posterior, summary,
+    corner plots, predictive check, the uniqueness table).
 
     Parameters
     ----------
     out : Path
         Output folder (created if needed).
+    data : Path, optional
+        Experiment folder to fit (default: the shipped synthetic reference data set).
+    seed : int
+        Seed of the fit.
     """
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -529,12 +569,18 @@ def run_demo(out: Path) -> None:
     experiment = Experiment()
     _demo_jumps(out, experiment)
     _demo_hard_ground(out, experiment)
-    written = ("heights.csv", "jumps.png", "hard_ground.csv", "hard_ground.png")
+    written = ["heights.csv", "jumps.png", "hard_ground.csv", "hard_ground.png"]
+    if data is not None:
+        _demo_fit(out / "fit", Path(data), seed)
+        written.append("fit/")
     print(f"Wrote {', '.join(written)} to {out}")
 
 
 def _run_demo(args: argparse.Namespace) -> int:
-    run_demo(args.out)
+    data = None if args.no_fit else args.data
+    if data is not None and not Path(data).is_dir():
+        raise UsageError(f"--data {data}: no such experiment folder")
+    run_demo(args.out, data, args.seed)
     return EXIT_OK
 
 
@@ -585,7 +631,7 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--resume",
         action="store_true",
-        help="continue an interrupted run from OUT.partial/chains.h5",
+        help="continue an interrupted run from its checkpoints in OUT.partial/chains/",
     )
     parser.add_argument(
         "--phi-mode",
@@ -667,7 +713,7 @@ def run_fit(args: argparse.Namespace) -> int:
             config,
             seed=args.seed,
             priors=priors,
-            backend=work / "chains.h5",
+            backend=work / "chains",
             resume=args.resume,
             data_source=str(args.data),
         )

@@ -122,7 +122,7 @@ class CommandProgram:
         return out
 
     def as_table(self) -> tuple[np.ndarray, np.ndarray]:
-        """Pack for the integrator.
+        """Pack for the integrator (computed once per program; do not modify the arrays).
 
         Returns
         -------
@@ -131,6 +131,9 @@ class CommandProgram:
         meta : ndarray, shape (4,)
             ``(omega [rad/s], n_segments, start_state code, pushoff_index)``.
         """
+        cached = self.__dict__.get("_table")
+        if cached is not None:
+            return cached
         table = np.zeros((MAX_SEGMENTS, 3))
         bounds = self.boundaries
         for i, seg in enumerate(self.segments):
@@ -144,6 +147,9 @@ class CommandProgram:
             ],
             dtype=float,
         )
+        table.flags.writeable = False
+        meta.flags.writeable = False
+        self.__dict__["_table"] = (table, meta)  # frozen dataclass: cache outside __init__
         return table, meta
 
 

@@ -215,30 +215,33 @@ def _run_part(
 ) -> FitPart:
     rng = np.random.default_rng(seed)
     s = config.sampler
-    resuming = resume and backend is not None and _stored_steps(backend, label) > 0
+    checkpoint = None if backend is None else Path(backend) / f"{label}.h5"
+    resuming = resume and checkpoint is not None and checkpoint.exists()
     initial = (
         np.zeros((s.n_walkers, model.ndim)) if resuming else find_start(model, rng, s.n_walkers)
     )
+    if checkpoint is not None:
+        checkpoint.parent.mkdir(parents=True, exist_ok=True)
     run = run_ensemble(
         model,
         initial,
         model.obs.n_obs,
         seed=seed,
         settings=s,
-        backend=backend,
-        name=label,
+        checkpoint=checkpoint,
         resume=resume,
+        fingerprint=_fingerprint(model, config, seed),
     )
     return FitPart(label, model, run, jumps)
 
 
-def _stored_steps(backend: Path, name: str) -> int:
-    import h5py
-
-    if not Path(backend).exists():
-        return 0
-    with h5py.File(backend, "r") as f:
-        return int(f[name].attrs.get("iteration", 0)) if name in f else 0
+def _fingerprint(model: JumpModel, config: FitConfig, seed: int) -> str:
+    """What a checkpoint must match to be resumed: data, priors, model and settings."""
+    h = hashlib.sha256()
+    h.update(data_hash(model.experiment, model.obs.table).encode())
+    h.update(repr(sorted((k, dataclasses.astuple(v)) for k, v in model.priors.items())).encode())
+    h.update(repr((model.coordinate_names, config.to_dict(), seed)).encode())
+    return h.hexdigest()
 
 
 def _prepare(table: pd.DataFrame) -> pd.DataFrame:
@@ -291,7 +294,7 @@ def fit(
     priors : mapping of str to Prior, optional
         Priors (default: :func:`granbayes.priors.default_priors`).
     backend : str or Path, optional
-        HDF5 checkpoint file (one group per run).
+        Folder of HDF5 checkpoints (one file per run, ``<label>.h5``).
     resume : bool
         Continue the runs stored in ``backend``.
     data_source : str

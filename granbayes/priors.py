@@ -25,6 +25,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import truncnorm
 
 from .errors import InputError
 from .forces import PARAMETERS
@@ -69,8 +70,11 @@ class Prior:
             raise ValueError(f"prior needs lower < upper, got {self.lower} >= {self.upper}")
         if self.log_scale and self.lower <= 0:
             raise ValueError(f"{self.dist} prior needs lower > 0")
-        if self.dist in ("normal", "lognormal") and (self.mu is None or not self.sigma):
-            raise ValueError(f"{self.dist} prior needs mu and sigma > 0")
+        if self.dist in ("normal", "lognormal"):
+            if self.mu is None or self.sigma is None:
+                raise ValueError(f"{self.dist} prior needs mu and sigma")
+            if not (math.isfinite(self.mu) and math.isfinite(self.sigma) and self.sigma > 0):
+                raise ValueError(f"{self.dist} prior needs a finite mu and a finite sigma > 0")
 
     @property
     def log_scale(self) -> bool:
@@ -112,11 +116,8 @@ class Prior:
         lo, hi = self.bounds_u
         if self.dist in ("uniform", "loguniform"):
             return rng.uniform(lo, hi, size)
-        out = np.empty(0)
-        while out.size < size:
-            draw = rng.normal(self.mu, self.sigma, 4 * size + 16)
-            out = np.concatenate([out, draw[(draw >= lo) & (draw <= hi)]])
-        return out[:size]
+        a, b = (lo - self.mu) / self.sigma, (hi - self.mu) / self.sigma
+        return truncnorm.rvs(a, b, loc=self.mu, scale=self.sigma, size=size, random_state=rng)
 
     def describe(self) -> str:
         """One-line description for reports."""

@@ -22,6 +22,7 @@ from .experiment import COMMAND_NAMES
 from .forces import PARAMETERS
 
 __all__ = [
+    "data_label",
     "load_truth",
     "plot_corner",
     "plot_predictive",
@@ -53,6 +54,23 @@ def load_truth(path: str | Path) -> dict[float, dict[str, float]]:
     """
     doc = tomllib.loads(Path(path).read_text())
     return {float(phi): dict(v) for phi, v in doc.get("phi", {}).items()}
+
+
+def data_label(dt: xr.DataTree) -> str:
+    """``"SYNTHETIC data (<generator>)"`` if the jumps say so in a ``source`` column, else ``""``.
+
+    Synthetic data sets mark every row (``source = "synthetic: <generator> seed=<n>"``);
+    every figure and summary of such data carries this label.
+    """
+    obs = dt.observed_data.to_dataset()
+    if "source" not in obs.coords:
+        return ""
+    sources = sorted({str(v) for v in obs["source"].values if str(v).startswith("synthetic")})
+    if not sources:
+        return ""
+    return (
+        "SYNTHETIC data (" + "; ".join(s.removeprefix("synthetic:").strip() for s in sources) + ")"
+    )
 
 
 def _label(name: str) -> str:
@@ -101,6 +119,8 @@ def plot_corner(
     title = f"Posterior at φ = {phi:g} (lines: 5%, 50%, 95%)"
     if truth is not None:
         title += "; orange: synthetic truth"
+    if data_label(dt):
+        title = f"{data_label(dt)}\n{title}"
     fig.suptitle(title, y=1.0)
     return fig
 
@@ -163,8 +183,10 @@ def plot_predictive(dt: xr.DataTree, ci_prob: float = gdt.CI_PROB) -> Figure:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("jump height H [mm]")
     axes[0].legend(title="actuation", fontsize=8)
+    label = data_label(dt)
     fig.suptitle(
-        f"Posterior predictive check: points = measured jumps; dark band = simulated height, "
+        (f"{label}\n" if label else "")
+        + "Posterior predictive check: points = measured jumps; dark band = simulated height, "
         f"light band = new jump ({ci_prob:.0%} equal-tailed)",
         fontsize=10,
     )
@@ -206,6 +228,8 @@ def plot_parameters_vs_phi(
         ax.set_ylabel(_label(n))
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
+    if data_label(dt):
+        fig.suptitle(data_label(dt), fontsize=10)
     return fig
 
 
@@ -268,6 +292,7 @@ def write_fit_report(
     lines = [
         "# granbayes fit",
         "",
+        *([f"**{data_label(dt)}**", ""] if data_label(dt) else []),
         f"- data: {dt.attrs.get('data_source', '')} (sha256 {dt.attrs['data_sha256'][:12]}…)",
         f"- terms: {', '.join(result.config.terms)}; parametrisation across φ: "
         f"{result.config.phi_mode}; noise: {result.config.noise}",

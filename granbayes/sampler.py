@@ -5,23 +5,33 @@
 chunks; after each chunk it estimates the integrated autocorrelation time ``tau`` of every
 coordinate (emcee's estimator) and stops once the chain after burn-in is at least
 ``tau_factor`` (default 50) times the largest ``tau`` and ``tau`` has stabilised, or at
-``max_steps``. With an HDF5 file the run is checkpointed at every step (emcee's
-``HDFBackend`` stores the chain, the blobs and the random state), so an interrupted run
-resumes exactly where it stopped and a resumed run is bit-identical to an uninterrupted
-one with the same seed.
+``max_steps``. With an HDF5 checkpoint file the run is saved after every chunk (chain,
+blobs, acceptance counts and emcee's random state, written to a temporary file and moved
+into place, so a checkpoint is always whole). An interrupted run resumes from the last
+checkpoint, losing at most one chunk of work, and a resumed run is bit-identical to an
+uninterrupted one with the same seed. (emcee's own ``HDFBackend`` reopens the file at every
+step, which cost a third of the sampling time here.)
 """
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import emcee
+import h5py
 import numpy as np
 
-__all__ = ["SamplerSettings", "SamplerRun", "run_ensemble"]
+__all__ = [
+    "SamplerSettings",
+    "SamplerRun",
+    "run_ensemble",
+    "save_checkpoint",
+    "load_checkpoint",
+]
 
 LogProbFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -131,6 +141,64 @@ def _tau(chain: np.ndarray) -> np.ndarray:
         return emcee.autocorr.integrated_time(chain, tol=0)
 
 
+def save_checkpoint(backend: emcee.backends.Backend, path: Path, fingerprint: str = "") -> None:
+    """Write an in-memory emcee backend to ``path`` atomically (temporary file + rename)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    n = backend.iteration
+    name, key, pos, has_gauss, cached = backend.random_state
+    with h5py.File(tmp, "w") as f:
+        f.create_dataset("chain", data=backend.chain[:n])
+        f.create_dataset("log_prob", data=backend.log_prob[:n])
+        if backend.blobs is not None:
+            f.create_dataset("blobs", data=np.asarray(backend.blobs[:n], dtype=float))
+        f.create_dataset("accepted", data=backend.accepted)
+        f.create_dataset("random_state_key", data=np.asarray(key))
+        f.attrs.update(
+            iteration=n,
+            random_state_name=name,
+            random_state_pos=int(pos),
+            random_state_has_gauss=int(has_gauss),
+            random_state_cached_gaussian=float(cached),
+            fingerprint=fingerprint,
+        )
+    os.replace(tmp, path)
+
+
+def checkpoint_fingerprint(path: Path) -> str | None:
+    """The fingerprint stored in a checkpoint (``None`` if there is no checkpoint)."""
+    path = Path(path)
+    if not path.exists():
+        return None
+    with h5py.File(path, "r") as f:
+        return str(f.attrs.get("fingerprint", ""))
+
+
+def load_checkpoint(path: Path) -> emcee.backends.Backend | None:
+    """An in-memory emcee backend restored from a checkpoint (``None`` if there is none)."""
+    path = Path(path)
+    if not path.exists():
+        return None
+    with h5py.File(path, "r") as f:
+        n = int(f.attrs["iteration"])
+        chain = f["chain"][...]
+        backend = emcee.backends.Backend()
+        backend.reset(chain.shape[1], chain.shape[2])
+        backend.chain = chain
+        backend.log_prob = f["log_prob"][...]
+        backend.blobs = f["blobs"][...] if "blobs" in f else None
+        backend.accepted = f["accepted"][...]
+        backend.iteration = n
+        backend.random_state = (
+            str(f.attrs["random_state_name"]),
+            f["random_state_key"][...],
+            int(f.attrs["random_state_pos"]),
+            int(f.attrs["random_state_has_gauss"]),
+            float(f.attrs["random_state_cached_gaussian"]),
+        )
+    return backend if n > 0 else None
+
+
 def _burn(tau: np.ndarray, done: int, s: SamplerSettings) -> int:
     """Burn-in [steps]: ``burn_factor`` autocorrelation times (half the chain if unknown)."""
     if not np.all(np.isfinite(tau)):
@@ -155,9 +223,9 @@ def run_ensemble(
     *,
     seed: int,
     settings: SamplerSettings | None = None,
-    backend: str | Path | None = None,
-    name: str = "mcmc",
+    checkpoint: str | Path | None = None,
     resume: bool = False,
+    fingerprint: str = "",
 ) -> SamplerRun:
     """Sample until converged or capped.
 
@@ -174,12 +242,13 @@ def run_ensemble(
         stored state).
     settings : SamplerSettings, optional
         Chain length and moves.
-    backend : str or Path, optional
-        HDF5 file for checkpoints.
-    name : str
-        Group of this run inside the HDF5 file.
+    checkpoint : str or Path, optional
+        HDF5 checkpoint file of this run (written after every chunk).
     resume : bool
-        Continue the run stored in ``backend`` (else it is reset).
+        Continue the run stored in ``checkpoint`` (else it is started afresh).
+    fingerprint : str
+        Identity of the problem (data, model, settings); stored in the checkpoint, and a
+        resume from a checkpoint with another fingerprint is refused.
 
     Returns
     -------
@@ -191,10 +260,17 @@ def run_ensemble(
     if n_walkers != s.n_walkers:
         raise ValueError(f"initial has {n_walkers} walkers, settings say {s.n_walkers}")
     store = None
-    if backend is not None:
-        store = emcee.backends.HDFBackend(str(backend), name=name)
-        if not resume:
-            store.reset(n_walkers, ndim)
+    if resume and checkpoint is not None:
+        stored = checkpoint_fingerprint(checkpoint)
+        if stored is not None and stored != fingerprint:
+            raise ValueError(
+                f"checkpoint {checkpoint} was made for other data or settings; "
+                "rerun without --resume"
+            )
+        store = load_checkpoint(checkpoint)
+    if store is not None and store.shape != (n_walkers, ndim):
+        raise ValueError(f"checkpoint {checkpoint} has shape {store.shape}, not {initial.shape}")
+    store = store if store is not None else emcee.backends.Backend()
     sampler = emcee.EnsembleSampler(
         n_walkers,
         ndim,
@@ -226,6 +302,8 @@ def run_ensemble(
         n = min(c - done % c, s.max_steps - done)
         sampler.run_mcmc(start, n, progress=s.progress, store=True)
         start = None
+        if checkpoint is not None:
+            save_checkpoint(sampler.backend, Path(checkpoint), fingerprint)
     chain = sampler.get_chain()
     burn = _burn(tau, done, s)
     kept = done - burn
@@ -234,7 +312,8 @@ def run_ensemble(
     sel = slice(first, done, thin)
     samples = np.swapaxes(chain[sel], 0, 1)
     log_prob = sampler.get_log_prob()[sel].T
-    blobs = np.swapaxes(np.asarray(sampler.get_blobs()[sel], dtype=float), 0, 1)
+    kept_blobs = np.asarray(sampler.get_blobs()[sel], dtype=float)
+    blobs = np.swapaxes(kept_blobs.reshape(samples.shape[1], n_walkers, n_blobs), 0, 1)
     return SamplerRun(
         samples=samples,
         log_prob=log_prob,

@@ -68,6 +68,13 @@ MORE_CASES = [
         id="delayed-stutter-elastic-bed",
     ),
     pytest.param(
+        "delayed_stutter",
+        0.605,
+        {"k": 3000.0, "kappa": 1.0, "r_unload": 5.0, "c_comp": 0.7},
+        {},
+        id="delayed-stutter-compaction",
+    ),
+    pytest.param(
         "preload",
         0.610,
         {"k": 1000.0, "r_unload": 1.0},
@@ -104,7 +111,7 @@ def test_cases_cover_commands_and_terms() -> None:
     cases = [p.values for p in FAST_CASES + MORE_CASES]
     assert {c[0] for c in cases} == set(COMMAND_NAMES)
     used = {name for c in cases for name in c[2]}
-    assert used >= {"k", "c_d", "kappa", "k2", "b", "r_unload"}
+    assert used >= {"k", "c_d", "kappa", "k2", "b", "r_unload", "c_comp"}
 
 
 @pytest.mark.slow
@@ -118,6 +125,7 @@ def test_random_jumps_match_solve_ivp() -> None:
         "r_unload": (1.0, 50.0),
         "k2": (0.0, 2e5),
         "b": (0.0, 50.0),
+        "c_comp": (0.0, 2.0),
     }
     worst = 0.0
     for i in range(150):

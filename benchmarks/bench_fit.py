@@ -1,0 +1,117 @@
+"""Benchmark: ``granbayes fit`` on the SYNTHETIC reference data set, terms depth + drag.
+
+Target (issue "Bayesian fit"): converged over all volume fractions in <= 120 s wall on the
+2-core machine. Runs the fit as the CLI does (HDF5 checkpoint, report with figures) under
+cProfile and reports where the time goes. Writes ``benchmarks/results/fit.json``.
+
+Usage: ``python benchmarks/bench_fit.py [--seed N] [--no-report]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import datetime
+import json
+import os
+import platform
+import pstats
+import tempfile
+import time
+from pathlib import Path
+
+import numba
+
+from granbayes import load_experiment, load_jumps, simulate
+from granbayes.fit import FitConfig, fit
+from granbayes.report import write_fit_report
+
+HERE = Path(__file__).resolve().parent
+DATA = HERE.parent / "data" / "reference"
+
+#: (label, function name fragment in the profile) rows of the time breakdown.
+BREAKDOWN = (
+    ("simulator (compiled kernel, via simulate_rows)", "simulate_rows"),
+    ("start search (prior draws + Nelder-Mead)", "find_start"),
+    ("emcee sampling incl. likelihood", "run_mcmc"),
+    ("  of which HDF5 checkpoints", "save_checkpoint"),
+    ("autocorrelation checks", "_assess"),
+    ("posterior predictive replicates", "_replicate"),
+)
+
+
+def _cumtime(stats: pstats.Stats, fragment: str) -> float:
+    total = 0.0
+    for (_, _, name), (_, _, _, ct, _) in stats.stats.items():
+        if name == fragment:
+            total = max(total, ct)
+    return total
+
+
+def main() -> None:
+    """Run the benchmark and print a Markdown report."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--no-report", action="store_true", help="skip figures and tables")
+    args = parser.parse_args()
+    simulate("single", 0.612, {"k": 3000.0})  # compile / load the cache outside the timing
+    experiment = load_experiment(DATA)
+    table = load_jumps(DATA, experiment)
+    config = FitConfig(terms=("depth", "drag"))
+    with tempfile.TemporaryDirectory() as tmp:
+        prof = cProfile.Profile()
+        t0 = time.perf_counter()
+        prof.enable()
+        result = fit(experiment, table, config, seed=args.seed, backend=Path(tmp) / "chains")
+        t_fit = time.perf_counter() - t0
+        prof.disable()
+        t1 = time.perf_counter()
+        if not args.no_report:
+            write_fit_report(result, Path(tmp))
+        t_report = time.perf_counter() - t1
+        wall = time.perf_counter() - t0
+    stats = pstats.Stats(prof)
+    diag = result.diagnostics()
+    rows = [(label, _cumtime(stats, frag)) for label, frag in BREAKDOWN]
+    rows.append(("report: tables, LOO, figures, netCDF (not profiled)", t_report))
+    n_sims = int(diag["n_steps"].sum()) * config.sampler.n_walkers * 10
+    report = {
+        "date": datetime.date.today().isoformat(),
+        "wall_s": wall,
+        "fit_s": t_fit,
+        "converged": bool(diag["converged"].all()),
+        "runs": diag[["run", "n_steps", "tau_max", "acceptance", "converged"]].to_dict("records"),
+        "breakdown_s": dict(rows),
+        "approx_simulations": n_sims,
+        "numba_threads": numba.get_num_threads(),
+        "machine": (
+            f"{platform.platform()}, {os.cpu_count()} CPUs, Python {platform.python_version()}"
+        ),
+        "seed": args.seed,
+    }
+    (HERE / "results").mkdir(exist_ok=True)
+    (HERE / "results" / "fit.json").write_text(json.dumps(report, indent=2, default=float))
+    print(f"### `granbayes fit` on the synthetic reference data (depth + drag), {report['date']}")
+    print()
+    print(
+        f"- wall time: **{wall:.1f} s** (sampling {t_fit:.1f} s, target <= 120 s); "
+        f"converged: {report['converged']}; numba threads: {report['numba_threads']}"
+    )
+    print(f"- about {n_sims:,} jump simulations")
+    print()
+    print("| where the time goes | s |")
+    print("|---|---|")
+    for label, t in rows:
+        print(f"| {label} | {t:.1f} |")
+    print()
+    cols = ["run", "n_steps", "tau_max", "acceptance", "converged"]
+    print("| " + " | ".join(cols) + " |")
+    print("|" + "---|" * len(cols))
+    for r in diag[cols].itertuples(index=False):
+        print(f"| {r.run} | {r.n_steps} | {r.tau_max:.1f} | {r.acceptance:.2f} | {r.converged} |")
+    print()
+    print(f"machine: {report['machine']}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,463 @@
+"""Model criticism: what the simulation gets wrong, which physics is missing, and the gain.
+
+:func:`diagnose` runs the loop of the "model-criticism" issue on measured jumps:
+
+1. fit the baseline law (default: the thesis's depth-only law with the bed's default
+   unloading), one parameter set per volume fraction shared by all commands;
+2. show what it gets wrong: posterior predictive residuals per command x phi x frequency
+   cell, each with a z-score and a two-sided predictive p-value of the cell mean
+   (:func:`residual_table`); cells beyond the significance threshold are *misfit*;
+3. name the cause: every other term of the library is added to the current law and fitted;
+   candidates are compared by PSIS-LOO (ELPD difference and its standard error; where
+   Pareto k > 0.7 the comparison falls back to K-fold cross-validation);
+4. extend and measure the gain, forward: a term is added only when the evidence is clear
+   (the selection rule below); if misfit cells remain, a second round looks for a second
+   effect.
+
+Selection rule (documented in the report and in ``diagnosis.json``): the best candidate of
+a round is added when its ELPD gain over the current law exceeds both ``min_gain`` (4 nats)
+and ``se_factor`` (2) times the standard error of the difference, **and** the current law
+shows misfit (at least one significant cell) or the gain exceeds ``strong_gain``
+(10 nats). Otherwise the current law is adequate. False discoveries are as bad as misses:
+with no hidden effect, LOO penalises the extra parameter and the rule keeps the baseline.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from . import datatree as gdt
+from .experiment import Experiment
+from .fit import FitConfig, FitResult, fit
+from .forces import TERMS, terms_of
+from .priors import Prior
+from .sampler import SamplerSettings
+
+__all__ = ["DiagnoseConfig", "Diagnosis", "diagnose", "residual_table", "describe_cell"]
+
+
+def _screening_sampler() -> SamplerSettings:
+    return SamplerSettings(n_walkers=16, check_every=100, tau_factor=30, n_draws=100)
+
+
+@dataclass(frozen=True)
+class DiagnoseConfig:
+    """Settings of the criticism loop.
+
+    Parameters
+    ----------
+    baseline : tuple of str
+        Terms of the baseline law.
+    candidates : tuple of str, optional
+        Terms to try (default: every library term not in the baseline).
+    sampler : SamplerSettings
+        MCMC settings of every fit (screening settings: chains of >= 30 tau).
+    max_added : int
+        Most terms added by forward selection.
+    min_gain, se_factor, strong_gain : float
+        The selection rule (module docstring) [nats, -, nats].
+    z_threshold : float
+        A cell is misfit when its |z| exceeds this (default 3: about p < 0.003 per cell).
+    kfold : int
+        Folds of the K-fold fallback.
+    """
+
+    baseline: tuple[str, ...] = ("depth",)
+    candidates: tuple[str, ...] | None = None
+    sampler: SamplerSettings = field(default_factory=_screening_sampler)
+    max_added: int = 2
+    min_gain: float = 4.0
+    se_factor: float = 2.0
+    strong_gain: float = 10.0
+    z_threshold: float = 3.0
+    kfold: int = 5
+    n_threads: int | None = None
+
+    def candidate_terms(self, current: Sequence[str]) -> list[str]:
+        """Terms that may still be added to ``current``."""
+        pool = self.candidates if self.candidates is not None else tuple(TERMS)
+        return [t for t in terms_of(pool) if t not in current and not TERMS[t].required]
+
+
+@dataclass
+class Diagnosis:
+    """Result of :func:`diagnose` (``to_json`` gives ``diagnosis.json``)."""
+
+    baseline: FitResult
+    selected: FitResult
+    residuals_before: pd.DataFrame
+    residuals_after: pd.DataFrame
+    candidates: list[dict]
+    added: list[str]
+    record: dict
+    fits: dict[tuple[str, ...], FitResult]
+
+    @property
+    def verdict(self) -> str:
+        """``"extended"`` or ``"baseline_adequate"``."""
+        return self.record["verdict"]
+
+    def to_json(self) -> dict:
+        """The ``diagnosis.json`` document (shared/data-format.md)."""
+        return self.record
+
+
+# ----------------------------------------------------------------------------------------
+def residual_table(result: FitResult, ci_prob: float = gdt.CI_PROB) -> pd.DataFrame:
+    """Posterior predictive residuals per (command, phi, freq_hz) cell.
+
+    For each cell with ``n`` jumps: the observed mean, the posterior mean of the simulated
+    height, ``mean_residual_mm`` = observed - simulated, and the distribution of the mean of
+    ``n`` replicated jumps under the posterior predictive; ``z`` is the residual of the
+    observed mean in units of that distribution's standard deviation and ``p_value`` its
+    two-sided tail probability.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per cell, worst (largest |z|) first.
+    """
+    dt = result.datatree
+    obs = dt.observed_data.to_dataset()
+    pp = dt.posterior_predictive.to_dataset()
+    y = obs["height_mm"].values
+    rep = pp["height_mm"].values.reshape(-1, len(y))
+    sim = pp["height_sim_mm"].values.reshape(-1, len(y))
+    cells = pd.DataFrame(
+        {
+            "command": obs["command"].values,
+            "phi": obs["phi"].values.astype(float),
+            "freq_hz": obs["freq_hz"].values.astype(float) if "freq_hz" in obs.coords else 0.0,
+        }
+    )
+    rows = []
+    for (command, phi, freq), idx in cells.groupby(["command", "phi", "freq_hz"]).indices.items():
+        idx = np.asarray(idx)
+        y_mean = float(np.mean(y[idx]))
+        rep_mean = rep[:, idx].mean(axis=1)
+        sim_mean = float(np.mean(sim[:, idx]))
+        sd = float(np.std(rep_mean))
+        z = (y_mean - float(np.mean(rep_mean))) / sd if sd > 0 else np.inf
+        tail = min(np.mean(rep_mean >= y_mean), np.mean(rep_mean <= y_mean))
+        # resolution of the Monte Carlo p-value is 1/draws; beyond it, the normal tail of z
+        p = 2.0 * tail if tail > 0 else 2.0 * stats.norm.sf(abs(z))
+        rows.append(
+            {
+                "command": command,
+                "phi": phi,
+                "freq_hz": freq,
+                "n": len(idx),
+                "observed_mm": y_mean,
+                "simulated_mm": sim_mean,
+                "mean_residual_mm": y_mean - sim_mean,
+                "z": z,
+                "p_value": min(1.0, p),
+            }
+        )
+    table = pd.DataFrame(rows)
+    return table.reindex(table["z"].abs().sort_values(ascending=False).index).reset_index(drop=True)
+
+
+def describe_cell(row: Mapping) -> str:
+    """A misfit cell in words, e.g. "delayed stutter preload at phi = 0.592 (12 Hz) is
+    under-predicted by 18.1 mm (z = 5.3)"."""
+    verb = "under-predicted" if row["mean_residual_mm"] > 0 else "over-predicted"
+    freq = f" ({row['freq_hz']:g} Hz)" if row.get("freq_hz") else ""
+    return (
+        f"{str(row['command']).replace('_', ' ')} at phi = {row['phi']:g}{freq} is {verb} "
+        f"by {abs(row['mean_residual_mm']):.1f} mm (z = {row['z']:+.1f})"
+    )
+
+
+def rmse_mm(result: FitResult) -> float:
+    """Root-mean-square of observed minus posterior-mean simulated height [mm]."""
+    dt = result.datatree
+    y = dt.observed_data["height_mm"].values
+    sim = dt.posterior_predictive["height_sim_mm"].values.reshape(-1, len(y)).mean(axis=0)
+    return float(np.sqrt(np.mean((y - sim) ** 2)))
+
+
+# ----------------------------------------------------------------------------------------
+def _elpd(result: FitResult) -> dict:
+    return gdt.loo(result.datatree)
+
+
+def _kfold_elpd_i(
+    experiment: Experiment,
+    table: pd.DataFrame,
+    config: FitConfig,
+    priors: Mapping[str, Prior] | None,
+    seed: int,
+    k: int,
+) -> np.ndarray:
+    """Pointwise K-fold ELPD: each jump predicted by a fit without its fold."""
+    table = table.reset_index(drop=True)
+    rng = np.random.default_rng(seed)
+    folds = np.empty(len(table), dtype=int)
+    for _, idx in table.groupby(["phi", "command"]).indices.items():  # stratified
+        folds[idx] = rng.permutation(len(idx)) % k
+    elpd_i = np.empty(len(table))
+    for f in range(k):
+        train = table[folds != f]
+        test = folds == f
+        res = fit(experiment, train, config, seed=seed + 101 * (f + 1), priors=priors)
+        for part in res.parts:
+            phi = float(part.model.phis[0]) if config.phi_mode == "per_phi" else None
+            sel = test & ((table["phi"] == phi).to_numpy() if phi is not None else True)
+            if not np.any(sel):
+                continue
+            from .likelihood import Observations
+
+            obs = Observations.from_table(table[sel])
+            model = dataclasses.replace  # placeholder to keep linters quiet
+            del model
+            part_model = part.model
+            flat = part.run.samples.reshape(-1, part.run.samples.shape[-1])
+            heights, ok = part_model.predict(flat, obs)
+            mean = heights[:, obs.config_of_obs]
+            sigma = part_model.parameter_values(flat, obs.phis)["sigma_mm"][
+                :, np.searchsorted(obs.phis, obs.table["phi"].to_numpy(float))
+            ]
+            r = (obs.height_mm[None, :] - mean) / sigma
+            if part_model.noise == "normal":
+                ll = -0.5 * r * r - np.log(sigma) - 0.5 * math.log(2 * math.pi)
+            else:
+                ll = stats.t.logpdf(r, part_model.nu) - np.log(sigma)
+            ll[~ok] = -np.inf
+            elpd_i[np.flatnonzero(sel)] = np.logaddexp.reduce(ll, axis=0) - math.log(len(ll))
+    return elpd_i
+
+
+def _compare(
+    current: FitResult,
+    candidate: FitResult,
+    loo_current: dict,
+    loo_candidate: dict,
+) -> tuple[float, float, str]:
+    diff_i = loo_candidate["elpd_i"] - loo_current["elpd_i"]
+    return float(np.sum(diff_i)), float(np.sqrt(len(diff_i) * np.var(diff_i))), "psis-loo"
+
+
+def diagnose(
+    experiment: Experiment,
+    table: pd.DataFrame,
+    config: DiagnoseConfig | None = None,
+    *,
+    seed: int = 0,
+    priors: Mapping[str, Prior] | None = None,
+    data_source: str = "",
+    log=print,
+) -> Diagnosis:
+    """Run the criticism loop (module docstring) on measured jumps.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        Robot, command defaults and ``phi_c``.
+    table : pandas.DataFrame
+        Validated jumps (:func:`granbayes.load_jumps`).
+    config : DiagnoseConfig, optional
+        Baseline, candidates, MCMC settings and the selection rule.
+    seed : int
+        Master seed (recorded).
+    priors : mapping, optional
+        Prior overrides.
+    data_source : str
+        Where the data came from.
+    log : callable
+        Progress messages (``print`` by default; pass ``lambda *a: None`` to silence).
+
+    Returns
+    -------
+    Diagnosis
+    """
+    cfg = config or DiagnoseConfig()
+    table = table.reset_index(drop=True)
+    fits: dict[tuple[str, ...], FitResult] = {}
+    loos: dict[tuple[str, ...], dict] = {}
+    sources: dict[tuple[str, ...], str] = {}
+
+    def run(terms: Sequence[str]) -> FitResult:
+        key = terms_of(terms)
+        if key not in fits:
+            log(f"  fitting {' + '.join(key)} ...")
+            fc = FitConfig(terms=key, sampler=cfg.sampler, n_threads=cfg.n_threads)
+            fits[key] = fit(experiment, table, fc, seed=seed, priors=priors,
+                            data_source=data_source)  # fmt: skip
+            loos[key] = _elpd(fits[key])
+            sources[key] = "psis-loo"
+        return fits[key]
+
+    def ensure_kfold(key: tuple[str, ...]) -> None:
+        if sources[key] == "kfold":
+            return
+        fc = FitConfig(terms=key, sampler=cfg.sampler, n_threads=cfg.n_threads)
+        log(f"  Pareto k > 0.7 for {' + '.join(key)}: {cfg.kfold}-fold cross-validation ...")
+        elpd_i = _kfold_elpd_i(experiment, table, fc, priors, seed, cfg.kfold)
+        loos[key] = {
+            **loos[key],
+            "elpd_i": elpd_i,
+            "elpd": float(np.sum(elpd_i)),
+            "se": float(np.sqrt(len(elpd_i) * np.var(elpd_i))),
+        }
+        sources[key] = "kfold"
+
+    log(f"Baseline: {' + '.join(terms_of(cfg.baseline))}")
+    base_key = terms_of(cfg.baseline)
+    baseline = run(base_key)
+    residuals_before = residual_table(baseline)
+    current_key = base_key
+    current = baseline
+    added: list[str] = []
+    candidates: list[dict] = []
+    for round_no in range(1, cfg.max_added + 1):
+        misfit = residuals_before if round_no == 1 else residual_table(current)
+        n_misfit = int((misfit["z"].abs() > cfg.z_threshold).sum())
+        pool = cfg.candidate_terms(current_key)
+        if not pool:
+            break
+        if round_no > 1 and n_misfit == 0:
+            log("  no misfit cell remains: no second round")
+            break
+        log(f"Round {round_no}: trying {', '.join(pool)}")
+        entries = []
+        for term in pool:
+            key = terms_of((*current_key, term))
+            res = run(key)
+            bad = loos[key]["n_bad_k"] > 0 or loos[current_key]["n_bad_k"] > 0
+            if bad:
+                ensure_kfold(key)
+                ensure_kfold(current_key)
+            diff_i = loos[key]["elpd_i"] - loos[current_key]["elpd_i"]
+            diff = float(np.sum(diff_i))
+            se = float(np.sqrt(len(diff_i) * np.var(diff_i)))
+            base_diff_i = loos[key]["elpd_i"] - loos[base_key]["elpd_i"]
+            entry = {
+                "added": [*added, term],
+                "round": round_no,
+                "elpd": loos[key]["elpd"],
+                "elpd_diff": float(np.sum(base_diff_i)),
+                "elpd_diff_se": float(np.sqrt(len(base_diff_i) * np.var(base_diff_i))),
+                "elpd_diff_vs_current": diff,
+                "elpd_diff_vs_current_se": se,
+                "rmse_mm": rmse_mm(res),
+                "max_pareto_k": loos[key]["max_pareto_k"],
+                "method": "kfold" if bad else "psis-loo",
+            }
+            entries.append(entry)
+            log(
+                f"    + {term:<11} elpd gain {diff:+7.1f} ± {se:4.1f}   "
+                f"rmse {entry['rmse_mm']:.2f} mm ({entry['method']})"
+            )
+        candidates.extend(entries)
+        best = max(entries, key=lambda e: e["elpd_diff_vs_current"])
+        gain, se = best["elpd_diff_vs_current"], best["elpd_diff_vs_current_se"]
+        clear = gain > cfg.min_gain and gain > cfg.se_factor * se
+        if not (clear and (n_misfit > 0 or gain > cfg.strong_gain)):
+            log(f"  no clear gain (best: +{best['added'][-1]}, {gain:+.1f} ± {se:.1f})")
+            break
+        added.append(best["added"][-1])
+        current_key = terms_of((*current_key, best["added"][-1]))
+        current = fits[current_key]
+        log(f"  added {best['added'][-1]}")
+    residuals_after = residual_table(current)
+    record = _record(
+        cfg, baseline, current, base_key, current_key, loos, sources, residuals_before,
+        residuals_after, candidates, added, seed, data_source,
+    )  # fmt: skip
+    return Diagnosis(
+        baseline, current, residuals_before, residuals_after, candidates, added, record, fits
+    )
+
+
+def _interval(values: np.ndarray, ci_prob: float) -> list[float]:
+    q = [(1 - ci_prob) / 2, 0.5, 1 - (1 - ci_prob) / 2]
+    return [float(v) for v in np.nanquantile(values, q)]
+
+
+def _record(
+    cfg, baseline, current, base_key, current_key, loos, sources, before, after, candidates,
+    added, seed, data_source,
+) -> dict:  # fmt: skip
+    diff_i = loos[current_key]["elpd_i"] - loos[base_key]["elpd_i"]
+    misfit = before[before["z"].abs() > cfg.z_threshold]
+    keys = ["command", "phi", "freq_hz"]
+    merged = before.merge(after, on=keys, suffixes=("_before", "_after"))
+    per_cell = [
+        {
+            "command": r.command,
+            "phi": float(r.phi),
+            "freq_hz": float(r.freq_hz),
+            "residual_before_mm": float(r.mean_residual_mm_before),
+            "residual_after_mm": float(r.mean_residual_mm_after),
+            "z_before": float(r.z_before),
+            "z_after": float(r.z_after),
+        }
+        for r in merged.itertuples()
+    ]
+    post = current.datatree.posterior.to_dataset()
+    new_params = {}
+    for term in added:
+        for p in TERMS[term].parameters:
+            new_params[p.name] = {
+                f"{float(phi):g}": _interval(post[p.name].sel(phi=phi).values.ravel(), gdt.CI_PROB)
+                for phi in post["phi"].values
+            }
+    return {
+        "baseline": {
+            "terms": list(base_key),
+            "elpd": float(loos[base_key]["elpd"]),
+            "elpd_se": float(loos[base_key]["se"]),
+            "rmse_mm": rmse_mm(baseline),
+            "method": sources[base_key],
+        },
+        "misfit": [
+            {
+                "command": r.command,
+                "phi": float(r.phi),
+                "freq_hz": float(r.freq_hz),
+                "n": int(r.n),
+                "mean_residual_mm": float(r.mean_residual_mm),
+                "z": float(r.z),
+                "p_value": float(r.p_value),
+                "significant": bool(abs(r.z) > cfg.z_threshold),
+                "description": describe_cell(r._asdict()),
+            }
+            for r in before.itertuples()
+        ],
+        "n_misfit_cells": len(misfit),
+        "candidates": candidates,
+        "verdict": "extended" if added else "baseline_adequate",
+        "selected": {
+            "terms": list(current_key),
+            "added": list(added),
+            "elpd_gain": float(np.sum(diff_i)),
+            "elpd_gain_se": float(np.sqrt(len(diff_i) * np.var(diff_i))),
+            "rmse_before_mm": rmse_mm(baseline),
+            "rmse_after_mm": rmse_mm(current),
+            "parameters": new_params,
+            "interval": f"{gdt.CI_PROB:.0%} equal-tailed (5%, 50%, 95% quantiles)",
+            "per_cell": per_cell,
+        },
+        "rule": {
+            "min_gain": cfg.min_gain,
+            "se_factor": cfg.se_factor,
+            "strong_gain": cfg.strong_gain,
+            "z_threshold": cfg.z_threshold,
+            "text": (
+                f"add the best candidate when its ELPD gain > {cfg.min_gain:g} and > "
+                f"{cfg.se_factor:g} SE, and the current law has a cell with |z| > "
+                f"{cfg.z_threshold:g} or the gain exceeds {cfg.strong_gain:g}; at most "
+                f"{cfg.max_added} terms"
+            ),
+        },
+        "seed": int(seed),
+        "data_source": data_source,
+    }
