@@ -108,8 +108,7 @@ def main() -> None:
     with open(args.out / "jumps.csv", "w") as fh:
         jumps.to_csv(fh, index=False)
     (args.out / "README.md").write_text(
-        header.lstrip("# ")
-        + "\nColumns: phi [-], command, freq_hz [Hz], trial, height_mm [mm].\n"
+        header.lstrip("# ") + "\nColumns: phi [-], command, freq_hz [Hz], trial, height_mm [mm].\n"
     )
     (args.out / "experiment.toml").write_text(
         header
