@@ -731,6 +731,88 @@ def run_fit(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------------------
+# granbayes diagnose
+# ----------------------------------------------------------------------------------------
+
+
+def _add_diagnose_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data", metavar="DIR", type=Path, help="experiment folder")
+    parser.add_argument(
+        "--out",
+        metavar="OUT",
+        type=Path,
+        required=True,
+        help="output folder (replaced only when the run succeeds)",
+    )
+    parser.add_argument(
+        "--baseline",
+        default="depth",
+        help="comma-separated terms of the baseline law (default: depth)",
+    )
+    parser.add_argument(
+        "--candidates", help="comma-separated terms to try (default: every other term)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
+    parser.add_argument("--walkers", type=int, default=16)
+    parser.add_argument("--max-steps", type=int, default=10_000)
+    parser.add_argument("--threads", type=int, help="numba threads (default: all cores)")
+    parser.add_argument("--priors", type=Path, help="TOML file of prior overrides")
+    parser.add_argument("--quiet", action="store_true", help="no progress messages")
+
+
+def run_diagnose(args: argparse.Namespace) -> int:
+    """``granbayes diagnose``: the model-criticism loop, written atomically to OUT."""
+    import dataclasses as dc
+
+    from .criticism import DiagnoseConfig, diagnose
+    from .experiment import load_jumps
+    from .forces import terms_of
+    from .priors import load_priors
+    from .report import write_diagnosis_report
+
+    def terms(text: str, option: str) -> tuple[str, ...]:
+        names = tuple(t.strip() for t in text.split(",") if t.strip())
+        try:
+            terms_of(names)
+        except ValueError as exc:
+            raise UsageError(f"{option} {text}: {exc}") from None
+        return names
+
+    if args.walkers < 4 or args.walkers % 2:
+        raise UsageError(f"--walkers {args.walkers}: must be an even number >= 4")
+    if args.max_steps < 100:
+        raise UsageError(f"--max-steps {args.max_steps}: must be >= 100")
+    config = DiagnoseConfig(
+        baseline=terms(args.baseline, "--baseline"),
+        candidates=None if args.candidates is None else terms(args.candidates, "--candidates"),
+        n_threads=args.threads,
+    )
+    config = dc.replace(
+        config,
+        sampler=dc.replace(config.sampler, n_walkers=args.walkers, max_steps=args.max_steps),
+    )
+    experiment = load_experiment(args.data)
+    table = load_jumps(args.data, experiment)
+    priors = load_priors(args.priors) if args.priors else None
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"--out {args.out}: exists and is not a folder")
+    log = (lambda *a, **k: None) if args.quiet else (lambda *a, **k: print(*a, **k, flush=True))
+    with staged_folder(args.out, resume=False) as work:
+        result = diagnose(
+            experiment,
+            table,
+            config,
+            seed=args.seed,
+            priors=priors,
+            data_source=str(args.data),
+            log=log,
+        )
+        write_diagnosis_report(result, work)
+    print((args.out / "report.md").read_text())
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------
 # Registry and entry point
 # ----------------------------------------------------------------------------------------
 
@@ -753,6 +835,15 @@ SUBCOMMANDS: list[Subcommand] = [
         description="Sample the posterior of the force-term parameters (emcee) per volume "
         "fraction, shared by all commands, and write posterior.nc, summary tables and "
         "figures into OUT.",
+    ),
+    Subcommand(
+        "diagnose",
+        "model criticism: what the simulation gets wrong and which physics is missing",
+        _add_diagnose_arguments,
+        run_diagnose,
+        description="Fit the baseline law, show its posterior predictive misfit per command "
+        "x phi x frequency, try every other force term of the library, keep the ones PSIS-LOO "
+        "clearly favours, and write OUT/diagnosis.json with a report and figures.",
     ),
     Subcommand(
         "demo",

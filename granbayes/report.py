@@ -28,6 +28,8 @@ __all__ = [
     "plot_predictive",
     "plot_parameters_vs_phi",
     "write_fit_report",
+    "plot_residual_heatmap",
+    "write_diagnosis_report",
 ]
 
 _UNITS = {p.name: p.unit for p in PARAMETERS} | {"sigma_mm": "mm"}
@@ -359,3 +361,168 @@ def _truth_of(truth: Mapping[float, Mapping[str, float]], label: str) -> float:
     except ValueError:
         return float("nan")
     return float(truth.get(phi, {}).get(name, np.nan))
+
+
+def plot_residual_heatmap(residuals: pd.DataFrame, title: str, z_threshold: float = 3.0) -> Figure:
+    """Mean residual (observed - simulated) per command x phi, one panel per frequency.
+
+    Cells are coloured by the mean residual [mm] (red: the model under-predicts) and
+    annotated with it and the z-score; cells with |z| above ``z_threshold`` are framed.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    freqs = sorted(residuals["freq_hz"].unique())
+    phis = sorted(residuals["phi"].unique())
+    commands = [c for c in COMMAND_NAMES if c in set(residuals["command"])]
+    vmax = max(5.0, float(np.nanmax(np.abs(residuals["mean_residual_mm"]))))
+    fig = Figure(
+        figsize=(1.25 * len(phis) * len(freqs) + 3.0, 0.55 * len(commands) + 1.8),
+        layout="constrained",
+    )
+    axes = fig.subplots(1, len(freqs), squeeze=False, sharey=True)[0]
+    image = None
+    for ax, f in zip(axes, freqs, strict=True):
+        grid = np.full((len(commands), len(phis)), np.nan)
+        zs = np.full_like(grid, np.nan)
+        sub = residuals[residuals["freq_hz"] == f]
+        for r in sub.itertuples():
+            i, j = commands.index(r.command), phis.index(r.phi)
+            grid[i, j], zs[i, j] = r.mean_residual_mm, r.z
+        image = ax.imshow(grid, cmap="RdBu_r", vmin=-vmax, vmax=vmax, aspect="auto")
+        for i in range(len(commands)):
+            for j in range(len(phis)):
+                if np.isnan(grid[i, j]):
+                    continue
+                strong = abs(zs[i, j]) > z_threshold
+                dark = abs(grid[i, j]) > 0.55 * vmax
+                ax.text(
+                    j,
+                    i,
+                    f"{grid[i, j]:+.1f}\nz={zs[i, j]:+.1f}",
+                    ha="center",
+                    va="center",
+                    fontsize=7,
+                    color="white" if dark else "black",
+                    fontweight="bold" if strong else "normal",
+                )
+                if strong:
+                    ax.add_patch(_frame(j, i))
+        ax.set_xticks(range(len(phis)), [f"{p:g}" for p in phis])
+        ax.set_yticks(range(len(commands)), [c.replace("_", " ") for c in commands])
+        ax.set_xlabel("volume fraction φ [-]")
+        ax.set_title(f"{f:g} Hz" if f else "")
+    fig.colorbar(image, ax=list(axes), label="mean residual: observed − simulated [mm]")
+    fig.suptitle(
+        title + f"\nmean residual [mm] and lack-of-fit z per cell (framed: |z| > {z_threshold:g})",
+        fontsize=10,
+    )
+    return fig
+
+
+def _frame(j: int, i: int):
+    from matplotlib.patches import Rectangle
+
+    return Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=2, ec="k")
+
+
+def write_diagnosis_report(diagnosis, out: Path) -> list[Path]:
+    """Write ``diagnosis.json``, residual tables, heat maps and ``report.md`` into ``out``.
+
+    Parameters
+    ----------
+    diagnosis : granbayes.criticism.Diagnosis
+        Result of :func:`granbayes.criticism.diagnose`.
+    out : Path
+        Existing folder.
+
+    Returns
+    -------
+    list of Path
+    """
+    out = Path(out)
+    rec = diagnosis.to_json()
+    label = data_label(diagnosis.baseline.datatree)
+    written = [out / "diagnosis.json"]
+    (out / "diagnosis.json").write_text(json.dumps(rec, indent=2, default=float) + "\n")
+    diagnosis.residuals_before.to_csv(out / "residuals_baseline.csv", index=False)
+    diagnosis.residuals_after.to_csv(out / "residuals_selected.csv", index=False)
+    pd.DataFrame([{**c, "added": "+".join(c["added"])} for c in rec["candidates"]]).to_csv(
+        out / "candidates.csv", index=False
+    )
+    z = rec["rule"]["z_threshold"]
+    base_terms = " + ".join(rec["baseline"]["terms"])
+    sel_terms = " + ".join(rec["selected"]["terms"])
+    prefix = f"{label}: " if label else ""
+    figs = {
+        "residuals_baseline.png": plot_residual_heatmap(
+            diagnosis.residuals_before, f"{prefix}baseline {base_terms}", z
+        ),
+        "residuals_selected.png": plot_residual_heatmap(
+            diagnosis.residuals_after, f"{prefix}selected {sel_terms}", z
+        ),
+        "predictive_selected.png": plot_predictive(diagnosis.selected.datatree),
+    }
+    for name, fig in figs.items():
+        fig.savefig(out / name, dpi=120, bbox_inches="tight")
+        written.append(out / name)
+    gdt.write_datatree(diagnosis.selected.datatree, out / "posterior_selected.nc")
+    written.append(out / "posterior_selected.nc")
+    sel = rec["selected"]
+    worst = [m for m in rec["misfit"] if m["significant"]][:5]
+    lines = [f"# What the simulation gets wrong: {Path(rec.get('data_source', '')).name}", ""]
+    if label:
+        lines += [f"**{label}**", ""]
+    if rec["verdict"] == "extended":
+        lines += [
+            f"**Verdict: extended.** The baseline law ({base_terms}) misses physics; adding "
+            f"**{', '.join(sel['added'])}** gains {sel['elpd_gain']:.1f} ± "
+            f"{sel['elpd_gain_se']:.1f} nats of ELPD and brings the RMSE from "
+            f"{sel['rmse_before_mm']:.2f} mm to {sel['rmse_after_mm']:.2f} mm.",
+        ]
+    else:
+        lines += [
+            f"**Verdict: baseline adequate.** No candidate term improves the baseline "
+            f"({base_terms}) by a clear margin; RMSE {sel['rmse_before_mm']:.2f} mm.",
+        ]
+    lines += ["", f"Baseline misfit ({rec['n_misfit_cells']} cells with |z| > {z:g}):", ""]
+    lines += [f"- {m['description']}" for m in worst] or ["- none"]
+    lines += ["", "## Candidates (PSIS-LOO; K-fold where Pareto k > 0.7)", ""]
+    cand = pd.DataFrame(
+        [
+            {
+                "round": c["round"],
+                "law": base_terms + "".join(f" + {t}" for t in c["added"]),
+                "elpd gain vs current": f"{c['elpd_diff_vs_current']:+.1f} ± "
+                f"{c['elpd_diff_vs_current_se']:.1f}",
+                "elpd gain vs baseline": f"{c['elpd_diff']:+.1f} ± {c['elpd_diff_se']:.1f}",
+                "rmse [mm]": f"{c['rmse_mm']:.2f}",
+                "max Pareto k": f"{c['max_pareto_k']:.2f}",
+                "method": c["method"],
+            }
+            for c in rec["candidates"]
+        ]
+    )
+    lines += [_markdown(cand) if len(cand) else "(none)", "", f"Rule: {rec['rule']['text']}.", ""]
+    if sel["parameters"]:
+        lines += ["## The added physics", "", f"Posterior ({sel['interval']}):", ""]
+        for name, per_phi in sel["parameters"].items():
+            cells = ", ".join(
+                f"φ={phi}: {v[1]:.3g} [{v[0]:.3g}, {v[2]:.3g}]" for phi, v in per_phi.items()
+            )
+            lines.append(f"- `{name}`: {cells}")
+        lines.append("")
+        improved = sorted(sel["per_cell"], key=lambda c: -abs(c["z_before"]))[:5]
+        lines += ["Largest misfits, before -> after:", ""]
+        lines += [
+            f"- {c['command'].replace('_', ' ')} at φ = {c['phi']:g} ({c['freq_hz']:g} Hz): "
+            f"{c['residual_before_mm']:+.1f} mm (z {c['z_before']:+.1f}) -> "
+            f"{c['residual_after_mm']:+.1f} mm (z {c['z_after']:+.1f})"
+            for c in improved
+        ]
+        lines.append("")
+    lines += ["## Figures", ""] + [f"![{n}]({n})" for n in figs]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    written.append(out / "report.md")
+    return written
