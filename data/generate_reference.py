@@ -23,10 +23,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
-from granbayes import COMMAND_NAMES, CommandSettings, Experiment, SolverOptions, simulate
+from granbayes import Experiment
+from granbayes.synthetic import make_jumps
 
 SEED = 20261121
 PHI_C = 0.612
@@ -65,31 +65,17 @@ def generate(seed: int = SEED) -> pd.DataFrame:
     pandas.DataFrame
         One row per synthetic jump (``jumps.csv`` columns plus ``true_height_mm``).
     """
-    rng = np.random.default_rng(seed)
-    rows = []
-    for phi in PHIS:
-        for freq in FREQS_HZ:
-            exp = Experiment(command=CommandSettings(freq_hz=freq))
-            for command in COMMAND_NAMES:
-                res = simulate(
-                    command, phi, true_params(phi), experiment=exp,
-                    options=SolverOptions.converged(),
-                )  # fmt: skip
-                truth = float(res.height_mm[0])
-                noise = rng.normal(0.0, true_sigma_mm(phi), size=TRIALS)
-                for trial in range(TRIALS):
-                    rows.append(
-                        {
-                            "phi": phi,
-                            "command": command,
-                            "freq_hz": freq,
-                            "trial": trial + 1,
-                            "height_mm": round(truth + noise[trial], 3),
-                            "true_height_mm": round(truth, 4),
-                            "source": f"synthetic: data/generate_reference.py seed={seed}",
-                        }
-                    )
-    return pd.DataFrame(rows)
+    table = make_jumps(
+        true_params,
+        true_sigma_mm,
+        experiment=Experiment(),
+        phis=PHIS,
+        freqs_hz=FREQS_HZ,
+        trials=TRIALS,
+        seed=seed,
+        label="data/generate_reference.py",
+    )
+    return table[["phi", "command", "freq_hz", "trial", "height_mm", "true_height_mm", "source"]]
 
 
 def main() -> None:
