@@ -25,7 +25,7 @@ test: $(BIN)/.installed
 	$(BIN)/python -m pytest -m "not slow" -n 2
 
 test-slow: $(BIN)/.installed
-	$(BIN)/python -m pytest -m slow -n 2
+	$(BIN)/python -m pytest -m slow -n 2 --dist loadgroup
 
 lint: $(BIN)/.installed
 	$(BIN)/ruff check granbayes tests benchmarks analyses data
@@ -37,6 +37,7 @@ format: $(BIN)/.installed
 bench: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_simulator.py
 	$(BIN)/python benchmarks/bench_fit.py
+	$(BIN)/python benchmarks/bench_diagnose.py
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache

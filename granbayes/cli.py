@@ -614,21 +614,43 @@ def staged_folder(out: Path, resume: bool) -> Iterator[Path]:
         shutil.rmtree(old)
 
 
-def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
+def _add_inference_arguments(parser: argparse.ArgumentParser, max_steps: int) -> None:
+    """Arguments shared by ``fit`` and ``diagnose`` (same names everywhere)."""
     parser.add_argument("data", metavar="DIR", type=Path, help="experiment folder")
     parser.add_argument(
         "--out",
         metavar="OUT",
         type=Path,
         required=True,
-        help="output folder (replaced only when the fit succeeds)",
+        help="output folder (replaced only when the run succeeds)",
     )
+    parser.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
+    parser.add_argument("--priors", type=Path, help="TOML file of prior overrides")
+    parser.add_argument("--walkers", type=int, default=16, help="emcee walkers (default 16)")
+    parser.add_argument(
+        "--max-steps", type=int, default=max_steps, help=f"step cap (default {max_steps})"
+    )
+    parser.add_argument("--threads", type=int, help="numba threads (default: all cores)")
+
+
+def _check_inference_arguments(args: argparse.Namespace) -> None:
+    if args.walkers < 4 or args.walkers % 2:
+        raise UsageError(f"--walkers {args.walkers}: must be an even number >= 4")
+    if args.max_steps < 100:
+        raise UsageError(f"--max-steps {args.max_steps}: must be >= 100")
+    if args.threads is not None and args.threads < 1:
+        raise UsageError(f"--threads {args.threads}: must be >= 1")
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"--out {args.out}: exists and is not a folder")
+
+
+def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
+    _add_inference_arguments(parser, max_steps=20_000)
     parser.add_argument(
         "--terms",
         default="depth,drag",
         help=f"comma-separated force terms (default depth,drag; available: {', '.join(TERMS)})",
     )
-    parser.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
     parser.add_argument(
         "--resume",
         action="store_true",
@@ -648,7 +670,6 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         default="per_phi",
         help="scatter per volume fraction or global (quadratic mode)",
     )
-    parser.add_argument("--priors", type=Path, help="TOML file of prior overrides")
     parser.add_argument(
         "--compare-commands",
         action="store_true",
@@ -657,9 +678,6 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--truth", type=Path, help="truth.toml of synthetic data, overlaid on figures"
     )
-    parser.add_argument("--walkers", type=int, default=16)
-    parser.add_argument("--max-steps", type=int, default=20_000)
-    parser.add_argument("--threads", type=int, help="numba threads (default: all cores)")
     parser.add_argument("--progress", action="store_true", help="show progress bars")
 
 
@@ -667,10 +685,7 @@ def _fit_config(args: argparse.Namespace):
     from .fit import FitConfig
     from .sampler import SamplerSettings
 
-    if args.walkers < 4 or args.walkers % 2:
-        raise UsageError(f"--walkers {args.walkers}: must be an even number >= 4")
-    if args.max_steps < 100:
-        raise UsageError(f"--max-steps {args.max_steps}: must be >= 100")
+    _check_inference_arguments(args)
     terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
     sampler = SamplerSettings(
         n_walkers=args.walkers,
@@ -705,8 +720,6 @@ def run_fit(args: argparse.Namespace) -> int:
     table = load_jumps(args.data, experiment)
     priors = load_priors(args.priors) if args.priors else None
     truth = load_truth(args.truth) if args.truth else None
-    if args.out.exists() and not args.out.is_dir():
-        raise UsageError(f"--out {args.out}: exists and is not a folder")
     with staged_folder(args.out, args.resume) as work:
         result = fit(
             experiment,
@@ -736,27 +749,13 @@ def run_fit(args: argparse.Namespace) -> int:
 
 
 def _add_diagnose_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("data", metavar="DIR", type=Path, help="experiment folder")
+    _add_inference_arguments(parser, max_steps=10_000)
     parser.add_argument(
-        "--out",
-        metavar="OUT",
-        type=Path,
-        required=True,
-        help="output folder (replaced only when the run succeeds)",
-    )
-    parser.add_argument(
-        "--baseline",
-        default="depth",
-        help="comma-separated terms of the baseline law (default: depth)",
+        "--baseline", default="depth", help="comma-separated terms of the baseline law"
     )
     parser.add_argument(
         "--candidates", help="comma-separated terms to try (default: every other term)"
     )
-    parser.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
-    parser.add_argument("--walkers", type=int, default=16)
-    parser.add_argument("--max-steps", type=int, default=10_000)
-    parser.add_argument("--threads", type=int, help="numba threads (default: all cores)")
-    parser.add_argument("--priors", type=Path, help="TOML file of prior overrides")
     parser.add_argument("--quiet", action="store_true", help="no progress messages")
 
 
@@ -778,10 +777,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
             raise UsageError(f"{option} {text}: {exc}") from None
         return names
 
-    if args.walkers < 4 or args.walkers % 2:
-        raise UsageError(f"--walkers {args.walkers}: must be an even number >= 4")
-    if args.max_steps < 100:
-        raise UsageError(f"--max-steps {args.max_steps}: must be >= 100")
+    _check_inference_arguments(args)
     config = DiagnoseConfig(
         baseline=terms(args.baseline, "--baseline"),
         candidates=None if args.candidates is None else terms(args.candidates, "--candidates"),
@@ -794,8 +790,6 @@ def run_diagnose(args: argparse.Namespace) -> int:
     experiment = load_experiment(args.data)
     table = load_jumps(args.data, experiment)
     priors = load_priors(args.priors) if args.priors else None
-    if args.out.exists() and not args.out.is_dir():
-        raise UsageError(f"--out {args.out}: exists and is not a folder")
     log = (lambda *a, **k: None) if args.quiet else (lambda *a, **k: print(*a, **k, flush=True))
     with staged_folder(args.out, resume=False) as work:
         result = diagnose(

@@ -68,6 +68,9 @@ class DiagnoseConfig:
         cells, a false alarm somewhere has probability of about 2-3% under a correct law).
     kfold : int
         Folds of the K-fold fallback.
+    max_refits : int
+        Jumps with Pareto k > 0.7 recomputed by exact leave-one-out refits; beyond this
+        number, K-fold cross-validation is used instead.
     """
 
     baseline: tuple[str, ...] = ("depth",)
@@ -79,6 +82,7 @@ class DiagnoseConfig:
     strong_gain: float = 10.0
     z_threshold: float = 3.5
     kfold: int = 5
+    max_refits: int = 10
     n_threads: int | None = None
 
     def candidate_terms(self, current: Sequence[str]) -> list[str]:
@@ -219,6 +223,49 @@ def _elpd(result: FitResult) -> dict:
     return gdt.loo(result.datatree)
 
 
+def _log_predictive(part, rows: pd.DataFrame) -> np.ndarray:
+    """log p(y_i | data of the fit) for held-out jumps ``rows`` under a fitted run."""
+    obs = Observations.from_table(rows)
+    model = part.model
+    flat = part.run.samples.reshape(-1, part.run.samples.shape[-1])
+    heights, ok = model.predict(flat, obs)
+    mean = heights[:, obs.config_of_obs]
+    phi_index = np.searchsorted(model.phis, obs.table["phi"].to_numpy(float))
+    sigma = model.parameter_values(flat)["sigma_mm"][:, phi_index]
+    r = (obs.height_mm[None, :] - mean) / sigma
+    if model.noise == "normal":
+        ll = -0.5 * r * r - np.log(sigma) - 0.5 * math.log(2 * math.pi)
+    else:
+        ll = stats.t.logpdf(r, model.nu) - np.log(sigma)
+    ll[~ok] = -np.inf
+    return np.logaddexp.reduce(ll, axis=0) - math.log(len(ll))
+
+
+def _heldout_fit(experiment, train, config, priors, seed):
+    return fit(experiment, train, config, seed=seed, priors=priors)
+
+
+def _exact_loo(
+    experiment: Experiment,
+    table: pd.DataFrame,
+    config: FitConfig,
+    priors: Mapping[str, Prior] | None,
+    seed: int,
+    points: Sequence[int],
+) -> dict[int, float]:
+    """Exact leave-one-out ELPD of the given jumps: one refit per jump without it.
+
+    Only the jump's own volume fraction is refitted (``per_phi`` fits are independent).
+    """
+    out = {}
+    for j in points:
+        phi = table.loc[j, "phi"]
+        train = table[(table["phi"] == phi) & (table.index != j)]
+        res = _heldout_fit(experiment, train, config, priors, seed + 7919 * (j + 1))
+        out[j] = float(_log_predictive(res.parts[0], table.loc[[j]])[0])
+    return out
+
+
 def _kfold_elpd_i(
     experiment: Experiment,
     table: pd.DataFrame,
@@ -227,37 +274,18 @@ def _kfold_elpd_i(
     seed: int,
     k: int,
 ) -> np.ndarray:
-    """Pointwise K-fold ELPD: each jump predicted by a fit without its fold."""
-    table = table.reset_index(drop=True)
+    """Pointwise K-fold ELPD: each jump predicted by a fit without its fold (stratified)."""
     rng = np.random.default_rng(seed)
     folds = np.empty(len(table), dtype=int)
-    for _, idx in table.groupby(["phi", "command"]).indices.items():  # stratified
+    for _, idx in table.groupby(["phi", "command"]).indices.items():
         folds[idx] = rng.permutation(len(idx)) % k
     elpd_i = np.empty(len(table))
     for f in range(k):
-        train = table[folds != f]
-        test = folds == f
-        res = fit(experiment, train, config, seed=seed + 101 * (f + 1), priors=priors)
+        res = _heldout_fit(experiment, table[folds != f], config, priors, seed + 101 * (f + 1))
         for part in res.parts:
-            phi = float(part.model.phis[0]) if config.phi_mode == "per_phi" else None
-            sel = test & ((table["phi"] == phi).to_numpy() if phi is not None else True)
-            if not np.any(sel):
-                continue
-            obs = Observations.from_table(table[sel])
-            part_model = part.model
-            flat = part.run.samples.reshape(-1, part.run.samples.shape[-1])
-            heights, ok = part_model.predict(flat, obs)
-            mean = heights[:, obs.config_of_obs]
-            sigma = part_model.parameter_values(flat, obs.phis)["sigma_mm"][
-                :, np.searchsorted(obs.phis, obs.table["phi"].to_numpy(float))
-            ]
-            r = (obs.height_mm[None, :] - mean) / sigma
-            if part_model.noise == "normal":
-                ll = -0.5 * r * r - np.log(sigma) - 0.5 * math.log(2 * math.pi)
-            else:
-                ll = stats.t.logpdf(r, part_model.nu) - np.log(sigma)
-            ll[~ok] = -np.inf
-            elpd_i[np.flatnonzero(sel)] = np.logaddexp.reduce(ll, axis=0) - math.log(len(ll))
+            sel = (folds == f) & (table["phi"] == float(part.model.phis[0])).to_numpy()
+            if np.any(sel):
+                elpd_i[sel] = _log_predictive(part, table[sel])
     return elpd_i
 
 
@@ -312,19 +340,41 @@ def diagnose(
             sources[key] = "psis-loo"
         return fits[key]
 
-    def ensure_kfold(key: tuple[str, ...]) -> None:
-        if sources[key] == "kfold":
-            return
-        fc = FitConfig(terms=key, sampler=cfg.sampler, n_threads=cfg.n_threads)
-        log(f"  Pareto k > 0.7 for {' + '.join(key)}: {cfg.kfold}-fold cross-validation ...")
-        elpd_i = _kfold_elpd_i(experiment, table, fc, priors, seed, cfg.kfold)
-        loos[key] = {
-            **loos[key],
-            "elpd_i": elpd_i,
-            "elpd": float(np.sum(elpd_i)),
-            "se": float(np.sqrt(len(elpd_i) * np.var(elpd_i))),
-        }
-        sources[key] = "kfold"
+    exact: dict[tuple[str, ...], dict[int, float]] = {}
+
+    def pointwise(keys: Sequence[tuple[str, ...]]) -> tuple[list[np.ndarray], str]:
+        """Pointwise ELPD of models compared together, with the PSIS-LOO fallbacks.
+
+        Jumps with Pareto k > 0.7 in any of the models are recomputed for all of them:
+        by exact refits when there are at most ``max_refits`` such jumps, otherwise by
+        K-fold cross-validation of the whole data set.
+        """
+        bad = sorted(
+            set().union(*(np.flatnonzero(loos[k]["pareto_k"] > 0.7).tolist() for k in keys))
+        )
+        if not bad:
+            return [loos[k]["elpd_i"] for k in keys], "psis-loo"
+        if len(bad) > cfg.max_refits:
+            for k in keys:
+                if sources[k] != "kfold":
+                    log(f"  {len(bad)} jumps with Pareto k > 0.7: {cfg.kfold}-fold CV ...")
+                    fc = FitConfig(terms=k, sampler=cfg.sampler, n_threads=cfg.n_threads)
+                    kf = _kfold_elpd_i(experiment, table, fc, priors, seed, cfg.kfold)
+                    loos[k] = {**loos[k], "elpd_i_kfold": kf}
+                    sources[k] = "kfold"
+            return [loos[k]["elpd_i_kfold"] for k in keys], "kfold"
+        out = []
+        for k in keys:
+            done = exact.setdefault(k, {})
+            todo = [j for j in bad if j not in done]
+            if todo:
+                log(f"  exact leave-one-out refits of {len(todo)} jump(s) for {' + '.join(k)}")
+                fc = FitConfig(terms=k, sampler=cfg.sampler, n_threads=cfg.n_threads)
+                done.update(_exact_loo(experiment, table, fc, priors, seed, todo))
+            e = loos[k]["elpd_i"].copy()
+            e[bad] = [done[j] for j in bad]
+            out.append(e)
+        return out, f"psis-loo + {len(bad)} exact refit(s)"
 
     log(f"Baseline: {' + '.join(terms_of(cfg.baseline))}")
     base_key = terms_of(cfg.baseline)
@@ -348,25 +398,20 @@ def diagnose(
         for term in pool:
             key = terms_of((*current_key, term))
             res = run(key)
-            bad = loos[key]["n_bad_k"] > 0 or loos[current_key]["n_bad_k"] > 0
-            if bad:
-                ensure_kfold(key)
-                ensure_kfold(current_key)
-            diff_i = loos[key]["elpd_i"] - loos[current_key]["elpd_i"]
-            diff = float(np.sum(diff_i))
-            se = float(np.sqrt(len(diff_i) * np.var(diff_i)))
-            base_diff_i = loos[key]["elpd_i"] - loos[base_key]["elpd_i"]
+            (e_key, e_cur, e_base), method = pointwise((key, current_key, base_key))
+            diff, se = gdt.elpd_difference(e_key, e_cur)
+            base_diff, base_se = gdt.elpd_difference(e_key, e_base)
             entry = {
                 "added": [*added, term],
                 "round": round_no,
-                "elpd": loos[key]["elpd"],
-                "elpd_diff": float(np.sum(base_diff_i)),
-                "elpd_diff_se": float(np.sqrt(len(base_diff_i) * np.var(base_diff_i))),
+                "elpd": float(np.sum(e_key)),
+                "elpd_diff": base_diff,
+                "elpd_diff_se": base_se,
                 "elpd_diff_vs_current": diff,
                 "elpd_diff_vs_current_se": se,
                 "rmse_mm": rmse_mm(res),
                 "max_pareto_k": loos[key]["max_pareto_k"],
-                "method": "kfold" if bad else "psis-loo",
+                "method": method,
             }
             entries.append(entry)
             log(
@@ -385,6 +430,8 @@ def diagnose(
         current = fits[current_key]
         log(f"  added {best['added'][-1]}")
     residuals_after = residual_table(current)
+    (e_cur, e_base), method = pointwise((current_key, base_key))
+    gain = (*gdt.elpd_difference(e_cur, e_base), method)
     record = _record(
         cfg,
         baseline,
@@ -399,6 +446,7 @@ def diagnose(
         added,
         seed,
         data_source,
+        gain,
     )
     return Diagnosis(
         baseline, current, residuals_before, residuals_after, candidates, added, record, fits
@@ -424,8 +472,9 @@ def _record(
     added,
     seed,
     data_source,
+    gain,
 ) -> dict:
-    diff_i = loos[current_key]["elpd_i"] - loos[base_key]["elpd_i"]
+    gain, gain_se, gain_method = gain
     misfit = before[before["z"].abs() > cfg.z_threshold]
     keys = ["command", "phi", "freq_hz"]
     merged = before.merge(after, on=keys, suffixes=("_before", "_after"))
@@ -477,8 +526,9 @@ def _record(
         "selected": {
             "terms": list(current_key),
             "added": list(added),
-            "elpd_gain": float(np.sum(diff_i)),
-            "elpd_gain_se": float(np.sqrt(len(diff_i) * np.var(diff_i))),
+            "elpd_gain": gain,
+            "elpd_gain_se": gain_se,
+            "elpd_method": gain_method,
             "rmse_before_mm": rmse_mm(baseline),
             "rmse_after_mm": rmse_mm(current),
             "parameters": new_params,

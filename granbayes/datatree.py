@@ -22,6 +22,7 @@ __all__ = [
     "build_datatree",
     "summary_table",
     "loo",
+    "elpd_difference",
     "compare",
     "plot_diagnostics",
     "write_datatree",
@@ -151,6 +152,15 @@ def loo(dt: xr.DataTree) -> dict[str, object]:
         "max_pareto_k": float(np.nanmax(k)),
         "n_bad_k": int(np.sum(k > 0.7)),
     }
+
+
+def elpd_difference(elpd_i_a: np.ndarray, elpd_i_b: np.ndarray) -> tuple[float, float]:
+    """ELPD difference ``a - b`` and its standard error from pointwise values.
+
+    ``se = sqrt(n var(elpd_i_a - elpd_i_b))`` (Vehtari, Gelman & Gabry 2017, eq. 24).
+    """
+    d = np.asarray(elpd_i_a, dtype=float) - np.asarray(elpd_i_b, dtype=float)
+    return float(np.sum(d)), float(np.sqrt(d.size * np.var(d)))
 
 
 def compare(models: Mapping[str, xr.DataTree]) -> pd.DataFrame:

@@ -553,9 +553,7 @@ def compare_commands(
                 attrs={},
             )
         loo = {k: gdt.loo(v) for k, v in models.items()}
-        diff_i = loo["shared"]["elpd_i"] - loo["per_command"]["elpd_i"]
-        diff = float(np.sum(diff_i))
-        diff_se = float(np.sqrt(len(diff_i) * np.var(diff_i)))
+        diff, diff_se = gdt.elpd_difference(loo["shared"]["elpd_i"], loo["per_command"]["elpd_i"])
         row = {
             "phi": phi,
             "elpd_shared": loo["shared"]["elpd"],

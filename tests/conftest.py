@@ -31,3 +31,15 @@ def reference_heights_path() -> Path:
     if not REFERENCE_HEIGHTS.is_file():
         pytest.skip(f"{REFERENCE_HEIGHTS} not found (shared/ must sit beside the repository)")
     return REFERENCE_HEIGHTS
+
+
+def pytest_configure(config):
+    """Under pytest-xdist, one numba thread per worker (2 workers x 2 threads on 2 cores
+    oversubscribe the machine); tests that ask for more threads explicitly still get them,
+    up to NUMBA_NUM_THREADS."""
+    import os
+
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        import numba
+
+        numba.set_num_threads(1)

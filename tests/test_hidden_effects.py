@@ -74,7 +74,9 @@ def _diagnosis(term: str | None):
     return diagnose(EXPERIMENT, table, CONFIG, seed=5, log=lambda *a, **k: None)
 
 
-@pytest.mark.parametrize("term", list(EFFECTS))
+@pytest.mark.parametrize(
+    "term", [pytest.param(t, marks=pytest.mark.xdist_group(t)) for t in EFFECTS]
+)
 def test_diagnose_finds_the_hidden_term(term: str) -> None:
     """Exactly the hidden term is added; its parameter is recovered; the gain is real."""
     d = _diagnosis(term)
@@ -89,6 +91,7 @@ def test_diagnose_finds_the_hidden_term(term: str) -> None:
     assert rec["selected"]["rmse_after_mm"] < rec["selected"]["rmse_before_mm"]
 
 
+@pytest.mark.xdist_group("null")
 def test_null_case_keeps_the_baseline() -> None:
     """No hidden effect: no term may be added (false discoveries are as bad as misses)."""
     d = _diagnosis(None)
@@ -96,7 +99,13 @@ def test_null_case_keeps_the_baseline() -> None:
     assert d.added == []
 
 
-@pytest.mark.parametrize(("truth", "rival"), [("drag", "viscous"), ("viscous", "drag")])
+@pytest.mark.parametrize(
+    ("truth", "rival"),
+    [
+        pytest.param("drag", "viscous", marks=pytest.mark.xdist_group("drag")),
+        pytest.param("viscous", "drag", marks=pytest.mark.xdist_group("viscous")),
+    ],
+)
 def test_two_frequencies_separate_drag_from_viscous(truth: str, rival: str) -> None:
     """The true rate law beats its rival by ELPD (recorded with the SE of the difference)."""
     d = _diagnosis(truth)
