@@ -395,31 +395,54 @@ def diagnose(
             break
         log(f"Round {round_no}: trying {', '.join(pool)}")
         entries = []
-        for term in pool:
+        for term in pool:  # PSIS-LOO screening of every candidate
             key = terms_of((*current_key, term))
             res = run(key)
-            (e_key, e_cur, e_base), method = pointwise((key, current_key, base_key))
-            diff, se = gdt.elpd_difference(e_key, e_cur)
-            base_diff, base_se = gdt.elpd_difference(e_key, e_base)
+            diff, se = gdt.elpd_difference(loos[key]["elpd_i"], loos[current_key]["elpd_i"])
+            base_diff, base_se = gdt.elpd_difference(loos[key]["elpd_i"], loos[base_key]["elpd_i"])
+            flagged = bool(loos[key]["n_bad_k"] or loos[current_key]["n_bad_k"])
             entry = {
                 "added": [*added, term],
                 "round": round_no,
-                "elpd": float(np.sum(e_key)),
+                "elpd": loos[key]["elpd"],
                 "elpd_diff": base_diff,
                 "elpd_diff_se": base_se,
                 "elpd_diff_vs_current": diff,
                 "elpd_diff_vs_current_se": se,
                 "rmse_mm": rmse_mm(res),
                 "max_pareto_k": loos[key]["max_pareto_k"],
-                "method": method,
+                "method": "psis-loo (Pareto k > 0.7, not decisive)" if flagged else "psis-loo",
+                "_key": key,
             }
             entries.append(entry)
-            log(
-                f"    + {term:<11} elpd gain {diff:+7.1f} ± {se:4.1f}   "
-                f"rmse {entry['rmse_mm']:.2f} mm ({entry['method']})"
+        # the decision rests on the best candidate (and a runner-up within 2 SE of it):
+        # where Pareto k is bad, recompute those comparisons with exact refits or K-fold
+        entries.sort(key=lambda e: -e["elpd_diff_vs_current"])
+        decisive = entries[:1] + [
+            e
+            for e in entries[1:2]
+            if entries[0]["elpd_diff_vs_current"] - e["elpd_diff_vs_current"]
+            < 2.0 * max(entries[0]["elpd_diff_vs_current_se"], e["elpd_diff_vs_current_se"])
+        ]
+        for e in decisive:
+            if e["method"] == "psis-loo":
+                continue
+            (e_key, e_cur, e_base), method = pointwise((e["_key"], current_key, base_key))
+            e["elpd"] = float(np.sum(e_key))
+            e["elpd_diff_vs_current"], e["elpd_diff_vs_current_se"] = gdt.elpd_difference(
+                e_key, e_cur
             )
+            e["elpd_diff"], e["elpd_diff_se"] = gdt.elpd_difference(e_key, e_base)
+            e["method"] = method
+        for e in entries:
+            log(
+                f"    + {e['added'][-1]:<11} elpd gain {e['elpd_diff_vs_current']:+7.1f} ± "
+                f"{e['elpd_diff_vs_current_se']:4.1f}   rmse {e['rmse_mm']:.2f} mm "
+                f"({e['method']})"
+            )
+            del e["_key"]
         candidates.extend(entries)
-        best = max(entries, key=lambda e: e["elpd_diff_vs_current"])
+        best = max(decisive, key=lambda e: e["elpd_diff_vs_current"])
         gain, se = best["elpd_diff_vs_current"], best["elpd_diff_vs_current_se"]
         clear = gain > cfg.min_gain and gain > cfg.se_factor * se
         if not (clear and (n_misfit > 0 or gain > cfg.strong_gain)):
@@ -430,8 +453,11 @@ def diagnose(
         current = fits[current_key]
         log(f"  added {best['added'][-1]}")
     residuals_after = residual_table(current)
-    (e_cur, e_base), method = pointwise((current_key, base_key))
-    gain = (*gdt.elpd_difference(e_cur, e_base), method)
+    if current_key == base_key:
+        gain = (0.0, 0.0, "none added")
+    else:
+        (e_cur, e_base), method = pointwise((current_key, base_key))
+        gain = (*gdt.elpd_difference(e_cur, e_base), method)
     record = _record(
         cfg,
         baseline,
