@@ -2,14 +2,15 @@
 
 For every term of the library: data from ``k(phi)`` + that effect + Gaussian noise
 (sigma = 2 mm) for a robot other than the default (lighter motor, softer spring, smaller
-foot, 18 mm amplitude), 3 volume fractions x 5 commands x 2 frequencies (7 and 12 Hz) x 3
+foot, 18 mm amplitude), 2 volume fractions x 5 commands x 2 frequencies (7 and 12 Hz) x 3
 trials, made by :func:`granbayes.synthetic.make_jumps` with a fixed seed. ``diagnose``
 starts from the depth-only law and must
 
 - name exactly the hidden term (verdict ``extended``, ``added == [term]``),
-- recover its parameter: the 90% interval covers the truth at >= 2 of the 3 volume
-  fractions (each covers with probability 0.9, so all three only 73% of the time; the
-  seeds are fixed, so the outcome is deterministic),
+- recover its parameter: the 90% interval covers the truth at >= 1 of the 2 volume
+  fractions and the posterior medians are within 35% of it (each interval covers with
+  probability 0.9, both only 81% of the time; the seeds are fixed, so the outcome is
+  deterministic),
 - gain: positive ELPD gain and a lower RMSE.
 
 A null case (no hidden effect) must give ``baseline_adequate``. The confusable pair drag /
@@ -44,7 +45,8 @@ EFFECTS = {
 CONFIG = DiagnoseConfig(
     sampler=SamplerSettings(
         n_walkers=12, check_every=100, tau_factor=20, n_draws=80, max_steps=3000
-    )
+    ),
+    max_refits=4,
 )
 
 
@@ -62,7 +64,7 @@ def _diagnosis(term: str | None):
         _truth(term),
         2.0,
         experiment=EXPERIMENT,
-        phis=(0.597, 0.612, 0.627),
+        phis=(0.597, 0.627),
         freqs_hz=(7.0, 12.0),
         trials=3,
         seed=11,
@@ -86,7 +88,8 @@ def test_diagnose_finds_the_hidden_term(term: str) -> None:
     ((name, true_value),) = EFFECTS[term].items()
     intervals = rec["selected"]["parameters"][name]
     covered = [lo <= true_value <= hi for lo, _, hi in intervals.values()]
-    assert sum(covered) >= 2, intervals
+    assert sum(covered) >= 1, intervals
+    assert all(abs(med / true_value - 1) < 0.35 for _, med, _ in intervals.values()), intervals
     assert rec["selected"]["elpd_gain"] > 0
     assert rec["selected"]["rmse_after_mm"] < rec["selected"]["rmse_before_mm"]
 
