@@ -46,7 +46,7 @@ CONFIG = DiagnoseConfig(
     sampler=SamplerSettings(
         n_walkers=12, check_every=100, tau_factor=20, n_draws=80, max_steps=3000
     ),
-    max_refits=4,
+    max_refits=10,
 )
 
 
