@@ -51,6 +51,7 @@ import scipy
 import granbayes
 from granbayes.commands import CommandProgram, build_command
 from granbayes.experiment import COMMAND_NAMES, Robot
+from granbayes.forces import typical_ranges
 from granbayes.simulator import SolverOptions, Status, build_rows, simulate_rows
 
 BENCH_DIR = Path(__file__).resolve().parent
@@ -60,14 +61,9 @@ from scipy_model import simulate_height_scipy  # noqa: E402
 RESULTS_DIR = BENCH_DIR / "results"
 
 #: Realistic ranges of the force parameters [SI] (uniform draws).
-PARAMETER_RANGES: dict[str, tuple[float, float]] = {
-    "k": (1e3, 1e4),
-    "c_d": (0.0, 100.0),
-    "kappa": (0.0, 2.0),
-    "r_unload": (1.0, 50.0),
-    "k2": (0.0, 2e5),
-    "b": (0.0, 50.0),
-}
+PARAMETER_RANGES: dict[str, tuple[float, float]] = typical_ranges(
+    ("k", "c_d", "kappa", "r_unload", "k2", "b")
+)
 PHI_RANGE = (0.592, 0.632)
 UNITS = {"k": "N/m", "c_d": "kg/m", "kappa": "-", "r_unload": "-", "k2": "N/m^2", "b": "N s/m"}
 

@@ -32,6 +32,7 @@ __all__ = [
     "parameter_term",
     "parameter_vector",
     "terms_of",
+    "typical_ranges",
 ]
 
 
@@ -255,6 +256,15 @@ def parameter_vector(values: Mapping[str, float]) -> np.ndarray:
         else:
             out[i] = p.absent
     return out
+
+
+def typical_ranges(names: Iterable[str] | None = None) -> dict[str, tuple[float, float]]:
+    """Realistic ranges [SI] of parameters (all of the library by default).
+
+    The ranges used by benchmarks and property tests: poppy seeds and a lab robot.
+    """
+    wanted = PARAMETER_NAMES if names is None else tuple(names)
+    return {n: _BY_NAME[n].typical for n in wanted}
 
 
 def terms_of(names: Iterable[str]) -> tuple[str, ...]:

@@ -18,6 +18,7 @@ import pytest
 
 import granbayes
 from granbayes.experiment import COMMAND_NAMES, Experiment
+from granbayes.forces import typical_ranges
 from granbayes.simulator import SolverOptions
 
 SCIPY_MODEL = Path(__file__).resolve().parents[1] / "benchmarks" / "scipy_model.py"
@@ -118,15 +119,7 @@ def test_cases_cover_commands_and_terms() -> None:
 def test_random_jumps_match_solve_ivp() -> None:
     """150 jumps drawn over the realistic parameter ranges, all commands."""
     rng = np.random.default_rng(20240611)
-    ranges = {
-        "k": (1e3, 1e4),
-        "c_d": (0.0, 100.0),
-        "kappa": (0.0, 2.0),
-        "r_unload": (1.0, 50.0),
-        "k2": (0.0, 2e5),
-        "b": (0.0, 50.0),
-        "c_comp": (0.0, 2.0),
-    }
+    ranges = typical_ranges()
     worst = 0.0
     for i in range(150):
         command = COMMAND_NAMES[i % len(COMMAND_NAMES)]

@@ -47,6 +47,7 @@ from granbayes import (
     simulate_table,
     simulate_trajectory,
 )
+from granbayes.forces import typical_ranges
 
 G = 9.81
 PHI = 0.612
@@ -55,14 +56,7 @@ CONVERGED = SolverOptions.converged()
 CONE_TAN = math.tan(math.pi / 3.0)
 CONE_MU = 2.0
 #: Realistic parameter ranges (forces.py ``typical``; phi around the critical packing).
-RANGES = {
-    "k": (1e3, 1e4),
-    "c_d": (0.0, 100.0),
-    "kappa": (0.0, 2.0),
-    "r_unload": (1.0, 50.0),
-    "k2": (0.0, 2e5),
-    "b": (0.0, 50.0),
-}
+RANGES = typical_ranges(("k", "c_d", "kappa", "r_unload", "k2", "b"))
 PHI_RANGE = (0.55, 0.65)
 #: An energy scale of the robot: lifting the upper body by 1 cm (~0.12 J).
 ENERGY_SCALE = Robot().m_upper * G * 0.01
