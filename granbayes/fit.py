@@ -192,7 +192,7 @@ def find_start(model: JumpModel, rng: np.random.Generator, n_walkers: int) -> np
         options={"maxfev": 150 * ndim, "xatol": 1e-5, "fatol": 1e-4},
     )
     x0 = res.x if res.fun < -lp.max() + 1e-9 else best
-    widths = np.array([hi - lo for lo, hi in (c.prior.bounds_u for c in model._coords)])
+    widths = np.diff(model.bounds_u, axis=1)[:, 0]
     out = np.empty((0, ndim))
     while len(out) < n_walkers:
         ball = x0 + 1e-3 * widths * rng.standard_normal((n_walkers, ndim))

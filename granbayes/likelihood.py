@@ -219,6 +219,11 @@ class JumpModel:
         return [c.name for c in self._coords]
 
     @property
+    def bounds_u(self) -> np.ndarray:
+        """Prior bounds of every sampled coordinate, shape (ndim, 2), in sampling units."""
+        return np.array([c.prior.bounds_u for c in self._coords])
+
+    @property
     def ndim(self) -> int:
         """Number of sampled coordinates."""
         return len(self._coords)
