@@ -199,7 +199,7 @@ class ForceLaw:
     >>> law.terms
     ('depth', 'drag')
     >>> law.vector()
-    array([3000.,   50.,    0.,   20.,    0.,    0.])
+    array([3000.,   50.,    0.,    0.,    0.,    0.,   20.])
     """
 
     terms: tuple[str, ...]

@@ -596,3 +596,12 @@ def test_batch_folder_rejected(tmp_path: Path) -> None:
     with pytest.raises(InputError) as error:
         load_batch_table(tmp_path)
     assert_located(error, tmp_path, None, None, "folder")
+
+
+def test_force_registry_docstring_examples() -> None:
+    """The examples in granbayes/forces.py run and print what they claim."""
+    import doctest
+
+    import granbayes.forces
+
+    assert doctest.testmod(granbayes.forces).failed == 0
