@@ -39,5 +39,27 @@ bench: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_fit.py
 	$(BIN)/python benchmarks/bench_diagnose.py
 
+# The analyses of analyses/ on an experiment folder (default: the SYNTHETIC reference data),
+# written to $(ANALYSES_OUT)/<analysis>/. On the reference data the improved law is the one
+# `granbayes diagnose` selects there (depth + drag + compaction; docs/analyses/README.md).
+DATA ?= data/reference
+ANALYSES_OUT ?= docs/analyses
+IMPROVED_LAW ?= depth,drag,compaction
+RUN_ANALYSIS = $(BIN)/python analyses/$@.py $(DATA) --out $(ANALYSES_OUT)/$@
+ANALYSES := preload_transfer misfit_maps heights_vs_phi added_mass_impulse one_force_law \
+	optimal_jumping hard_ground
+
+.PHONY: $(ANALYSES)
+analyses: $(ANALYSES)
+
+preload_transfer misfit_maps heights_vs_phi added_mass_impulse hard_ground: $(BIN)/.installed
+	$(RUN_ANALYSIS)
+
+one_force_law: $(BIN)/.installed
+	$(RUN_ANALYSIS) --terms depth,drag --terms $(IMPROVED_LAW)
+
+optimal_jumping: $(BIN)/.installed
+	$(RUN_ANALYSIS) --terms $(IMPROVED_LAW)
+
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache

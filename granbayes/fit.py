@@ -482,7 +482,8 @@ def compare_commands(
     seed: int = 0,
     priors: Mapping[str, Prior] | None = None,
     ci_prob: float = gdt.CI_PROB,
-) -> pd.DataFrame:
+    details: bool = False,
+) -> pd.DataFrame | tuple[pd.DataFrame, pd.DataFrame]:
     """One force law for all commands, or one per command? Per volume fraction.
 
     For every volume fraction fitted in ``shared`` (``per_phi`` mode), fits each command
@@ -502,6 +503,8 @@ def compare_commands(
     priors : mapping, optional
     ci_prob : float
         Interval probability for the overlap check.
+    details : bool
+        Also return the per-command posterior intervals.
 
     Returns
     -------
@@ -509,6 +512,10 @@ def compare_commands(
         One row per volume fraction: ``elpd_shared``, ``elpd_per_command``, ``elpd_diff``
         (shared minus per-command), ``elpd_diff_se``, max Pareto k of both, the preferred
         model, and per parameter whether the per-command intervals overlap.
+    pandas.DataFrame
+        Only with ``details``: one row per volume fraction, command and parameter with the
+        posterior ``median``, ``lo`` and ``hi`` (``ci_prob`` equal-tailed) of the
+        per-command fit.
     """
     if shared.config.phi_mode != "per_phi":
         raise ValueError("compare_commands needs a per_phi fit")
@@ -516,6 +523,7 @@ def compare_commands(
     table = _prepare(table)
     config = shared.config
     rows = []
+    per_command_rows = []
     seeds = iter(_seeds(seed + 7, 5 * len(shared.parts)))
     for part in shared.parts:
         phi = float(part.model.phis[0])
@@ -567,11 +575,23 @@ def compare_commands(
         lo_q, hi_q = (1 - ci_prob) / 2, 1 - (1 - ci_prob) / 2
         for pname in part.model.parameters:
             lows, highs = [], []
-            for _, p in sub_parts:
+            for command, p in sub_parts:
                 idx = p.model.coordinate_names.index(pname)
                 v = p.model.priors[pname].to_value(p.run.samples[..., idx].ravel())
                 lows.append(np.quantile(v, lo_q))
                 highs.append(np.quantile(v, hi_q))
+                per_command_rows.append(
+                    {
+                        "phi": phi,
+                        "command": command,
+                        "parameter": pname,
+                        "median": float(np.median(v)),
+                        "lo": float(lows[-1]),
+                        "hi": float(highs[-1]),
+                    }
+                )
             row[f"{pname}_intervals_overlap"] = bool(max(lows) <= min(highs))
         rows.append(row)
+    if details:
+        return pd.DataFrame(rows), pd.DataFrame(per_command_rows)
     return pd.DataFrame(rows)

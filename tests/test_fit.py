@@ -342,6 +342,16 @@ def test_compare_commands(tiny_fits: tuple[FitResult, FitResult], two_phis: Path
     assert np.all(result["elpd_diff_se"] >= 0)
     assert set(result["preferred"]) <= {"shared", "per_command"}
     assert result["k_intervals_overlap"].dtype == bool
+    # the per-command intervals behind the overlap flags (same seed: the same fits)
+    again, intervals = compare_commands(experiment, table, tiny_fits[0], seed=2, details=True)
+    pd.testing.assert_frame_equal(again, result)
+    assert list(intervals.columns) == ["phi", "command", "parameter", "median", "lo", "hi"]
+    assert np.all(
+        (intervals["lo"] <= intervals["median"]) & (intervals["median"] <= intervals["hi"])
+    )
+    for phi, group in intervals.groupby("phi"):
+        overlap = group["lo"].max() <= group["hi"].min()
+        assert overlap == bool(result.set_index("phi").loc[phi, "k_intervals_overlap"])
 
 
 def test_compare_commands_needs_per_phi(tiny_fits: tuple[FitResult, FitResult]) -> None:

@@ -1,0 +1,350 @@
+"""Shared plumbing of the analysis scripts: arguments, data, fits, figures and summaries.
+
+Every analysis script in this folder is ``python analyses/<name>.py [DIR] --out OUT
+[--seed N] [--fast]``: it reads an experiment folder (default: the SYNTHETIC reference data
+set), writes its figures (PNG for screens, PDF for papers), ``summary.md`` and
+``summary.json`` to ``OUT`` and prints the summary. ``OUT`` is replaced only when the
+analysis succeeds (it is built in ``OUT.partial``), so a failed run never destroys earlier
+results. ``--fast`` shortens chains and coarsens grids (for tests and quick looks); the
+numbers it prints are then rough.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import shutil
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+from matplotlib.figure import Figure
+
+import granbayes
+from granbayes import COMMAND_NAMES, Experiment, InputError, load_experiment, load_jumps
+from granbayes.fit import FitConfig, FitResult, data_hash, fit
+from granbayes.sampler import SamplerSettings
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The shipped SYNTHETIC reference data set (data/generate_reference.py, seed 20261121).
+REFERENCE_DATA = ROOT / "data" / "reference"
+
+#: Interval reported everywhere in the analyses (equal-tailed).
+CI_PROB = 0.90
+
+#: One colour per command (Okabe-Ito, colour-blind safe), in COMMAND_NAMES order.
+COMMAND_COLORS = dict(
+    zip(COMMAND_NAMES, ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00"), strict=True)
+)
+COMMAND_MARKERS = dict(zip(COMMAND_NAMES, ("o", "s", "^", "D", "v"), strict=True))
+
+
+@dataclass
+class Context:
+    """What every analysis gets: the data, where to write, and how hard to work.
+
+    Attributes
+    ----------
+    name : str
+        Analysis name (the script's stem).
+    data : Path
+        Experiment folder.
+    out : Path
+        Work folder (``OUT.partial``; becomes ``OUT`` on success).
+    seed : int
+        Master seed of everything random in the analysis.
+    fast : bool
+        Short chains and coarse grids.
+    experiment : Experiment
+    table : pandas.DataFrame
+        Validated jumps.
+    label : str
+        ``"SYNTHETIC data (...)"`` when the rows say so, else ``""``.
+    args : argparse.Namespace
+    """
+
+    name: str
+    data: Path
+    out: Path
+    seed: int
+    fast: bool
+    experiment: Experiment
+    table: pd.DataFrame
+    label: str
+    args: argparse.Namespace
+    written: list[str] = field(default_factory=list)
+
+    def rng(self, offset: int = 0) -> np.random.Generator:
+        """A generator seeded from the master seed (``offset`` separates streams)."""
+        return np.random.default_rng([self.seed, offset])
+
+    def title(self, text: str) -> str:
+        """A figure title with the data label (synthetic data are always marked)."""
+        where = self.label or f"data: {self.data.name}"
+        return f"{text}\n{where}"
+
+    @property
+    def phis(self) -> np.ndarray:
+        """Volume fractions present in the data, ascending."""
+        return np.unique(self.table["phi"].to_numpy(float))
+
+    @property
+    def phi_c(self) -> float:
+        """Critical packing of the experiment."""
+        return float(self.experiment.phi_c)
+
+    def save_figure(self, fig: Figure, stem: str) -> None:
+        """Write ``stem.png`` (150 dpi) and ``stem.pdf`` (vector, for papers)."""
+        for ext, kw in (("png", {"dpi": 150}), ("pdf", {})):
+            fig.savefig(self.out / f"{stem}.{ext}", **kw)
+        self.written += [f"{stem}.png", f"{stem}.pdf"]
+
+    def save_table(self, table: pd.DataFrame, stem: str) -> None:
+        """Write ``stem.csv``."""
+        table.to_csv(self.out / f"{stem}.csv", index=False)
+        self.written.append(f"{stem}.csv")
+
+
+def synthetic_label(table: pd.DataFrame) -> str:
+    """``"SYNTHETIC data (<generator>)"`` if the ``source`` column says so, else ``""``."""
+    if "source" not in table:
+        return ""
+    sources = sorted({str(s) for s in table["source"] if str(s).startswith("synthetic")})
+    if not sources:
+        return ""
+    return (
+        "SYNTHETIC data (" + "; ".join(s.removeprefix("synthetic:").strip() for s in sources) + ")"
+    )
+
+
+def parser(doc: str | None) -> argparse.ArgumentParser:
+    """The arguments every analysis takes (description: the script's docstring)."""
+    text = (doc or "").strip()
+    p = argparse.ArgumentParser(
+        description=text.splitlines()[0] if text else None,
+        epilog="\n".join(text.splitlines()[1:]).strip() or None,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "data",
+        metavar="DIR",
+        type=Path,
+        nargs="?",
+        default=REFERENCE_DATA,
+        help="experiment folder (default: the SYNTHETIC reference data set)",
+    )
+    p.add_argument("--out", metavar="OUT", type=Path, required=True, help="output folder")
+    p.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
+    p.add_argument(
+        "--fast", action="store_true", help="short chains and coarse grids (rough numbers)"
+    )
+    return p
+
+
+@contextlib.contextmanager
+def _staged(out: Path) -> Iterator[Path]:
+    work = out.with_name(out.name + ".partial")
+    if work.exists():
+        shutil.rmtree(work)
+    work.mkdir(parents=True)
+    yield work
+    old = out.with_name(out.name + ".old")
+    if old.exists():
+        shutil.rmtree(old)
+    if out.exists():
+        out.rename(old)
+    work.rename(out)
+    if old.exists():
+        shutil.rmtree(old)
+
+
+def main(
+    name: str,
+    doc: str | None,
+    analysis: Callable[[Context], tuple[str, dict]],
+    argv: Sequence[str] | None = None,
+    add_arguments: Callable[[argparse.ArgumentParser], None] | None = None,
+) -> int:
+    """Parse arguments, load the data, run ``analysis`` in a staged folder, write summaries.
+
+    ``analysis(ctx)`` writes its figures and tables into ``ctx.out`` and returns the
+    Markdown body of its summary and a JSON-ready dict of its key numbers.
+
+    Returns
+    -------
+    int
+        Exit code: 0 success, 2 bad input.
+    """
+    p = parser(doc)
+    if add_arguments is not None:
+        add_arguments(p)
+    args = p.parse_args(argv)
+    try:
+        experiment = load_experiment(args.data)
+        table = load_jumps(args.data, experiment)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    with _staged(out) as work:
+        ctx = Context(
+            name=name,
+            data=Path(args.data),
+            out=work,
+            seed=int(args.seed),
+            fast=bool(args.fast),
+            experiment=experiment,
+            table=table,
+            label=synthetic_label(table),
+            args=args,
+        )
+        try:
+            body, numbers = analysis(ctx)
+        except InputError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        seconds = time.perf_counter() - t0
+        heading = (doc or name).strip().splitlines()[0].rstrip(".")
+        provenance = {
+            "analysis": name,
+            "data": str(ctx.data),
+            "data_sha256": data_hash(experiment, table),
+            "data_label": ctx.label or "measured (no synthetic marker in the source column)",
+            "seed": ctx.seed,
+            "fast": ctx.fast,
+            "interval": f"{CI_PROB:.0%} equal-tailed",
+            "granbayes": granbayes.__version__,
+            "runtime_s": round(seconds, 1),
+        }
+        lines = [f"# {heading}", ""]
+        if ctx.label:
+            lines += [f"**{ctx.label}** — not measured.", ""]
+        lines += [body.strip(), ""]
+        lines += [
+            "---",
+            f"Data `{ctx.data}` (sha256 {provenance['data_sha256'][:12]}…), seed {ctx.seed}"
+            + (", **fast mode (short chains, coarse grids)**" if ctx.fast else "")
+            + f"; intervals are {CI_PROB:.0%} equal-tailed; {seconds:.0f} s.",
+            "Files: " + ", ".join(f"`{w}`" for w in ctx.written),
+            "",
+        ]
+        (work / "summary.md").write_text("\n".join(lines))
+        (work / "summary.json").write_text(
+            json.dumps({**provenance, "results": _jsonable(numbers)}, indent=2) + "\n"
+        )
+    print("\n".join(lines))
+    print(f"wrote {out}/")
+    return 0
+
+
+def _jsonable(value: object) -> object:
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.bool_ | bool):
+        return bool(value)
+    if isinstance(value, np.integer | int):
+        return int(value)
+    if isinstance(value, np.floating | float):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+# ----------------------------------------------------------------------------------------
+def sampler_settings(fast: bool) -> SamplerSettings:
+    """Production chains (>= 50 tau after burn-in), or short ones in fast mode."""
+    if fast:
+        return SamplerSettings(
+            n_walkers=12, max_steps=400, check_every=100, tau_factor=5.0, n_draws=40
+        )
+    return SamplerSettings(n_walkers=16, check_every=100, n_draws=125)
+
+
+def run_fit(
+    ctx: Context,
+    table: pd.DataFrame,
+    terms: Sequence[str],
+    *,
+    phi_mode: str = "per_phi",
+    seed_offset: int = 0,
+) -> FitResult:
+    """A granbayes fit of ``terms`` to ``table`` with the analysis's chain settings."""
+    config = FitConfig(terms=tuple(terms), phi_mode=phi_mode, sampler=sampler_settings(ctx.fast))
+    result = fit(
+        ctx.experiment,
+        table.reset_index(drop=True),
+        config,
+        seed=ctx.seed + seed_offset,
+        data_source=str(ctx.data),
+    )
+    for w in result.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    return result
+
+
+def posterior_draws(
+    dt: xr.DataTree,
+    phi: float,
+    names: Sequence[str],
+    n: int,
+    rng: np.random.Generator,
+) -> dict[str, np.ndarray]:
+    """``n`` joint posterior draws (with replacement) of ``names`` at volume fraction ``phi``.
+
+    The same (chain, draw) pairs are used for every name, so correlations are kept.
+    """
+    post = dt.posterior.to_dataset().sel(phi=phi, method="nearest")
+    n_chain, n_draw = post.sizes["chain"], post.sizes["draw"]
+    idx = rng.integers(0, n_chain * n_draw, size=n)
+    return {name: post[name].values.reshape(n_chain * n_draw)[idx].astype(float) for name in names}
+
+
+def interval(values: np.ndarray, ci_prob: float = CI_PROB) -> tuple[float, float, float]:
+    """Median and the equal-tailed ``ci_prob`` interval of ``values`` (NaNs ignored)."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return (math.nan, math.nan, math.nan)
+    lo, med, hi = np.quantile(v, [(1 - ci_prob) / 2, 0.5, 1 - (1 - ci_prob) / 2])
+    return float(med), float(lo), float(hi)
+
+
+def fmt_interval(values: np.ndarray, digits: int = 3, ci_prob: float = CI_PROB) -> str:
+    """``"median [lo, hi]"`` with ``digits`` significant digits."""
+    med, lo, hi = interval(values, ci_prob)
+    return f"{med:.{digits}g} [{lo:.{digits}g}, {hi:.{digits}g}]"
+
+
+def markdown_table(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
+    """A GitHub Markdown table (no tabulate dependency)."""
+    cols = list(df.columns)
+
+    def cell(v: object) -> str:
+        if isinstance(v, float | np.floating):
+            return "" if not math.isfinite(v) else format(v, floatfmt)
+        return str(v)
+
+    lines = ["| " + " | ".join(map(str, cols)) + " |", "|" + "---|" * len(cols)]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in df.itertuples(index=False)]
+    return "\n".join(lines)
+
+
+#: Per-row command settings of a jumps table (physics-model.md section 4).
+SETTING_COLUMNS = ("amplitude_mm", "freq_hz", "delay_ms", "settle_periods")
+
+
+def cell_experiment(experiment: Experiment, row: Mapping[str, object]) -> Experiment:
+    """The experiment with the command settings of one data row (or cell) applied."""
+    return experiment.replace(
+        **{k: float(row[k]) for k in SETTING_COLUMNS if k in row and pd.notna(row[k])}
+    )
