@@ -12,13 +12,11 @@ numbers it prints are then rough.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
-import shutil
 import sys
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,6 +27,7 @@ from matplotlib.figure import Figure
 
 import granbayes
 from granbayes import COMMAND_NAMES, Experiment, InputError, load_experiment, load_jumps
+from granbayes.cli import staged_folder
 from granbayes.fit import FitConfig, FitResult, data_hash, fit
 from granbayes.sampler import SamplerSettings
 
@@ -145,24 +144,14 @@ def parser(doc: str | None) -> argparse.ArgumentParser:
     p.add_argument(
         "--fast", action="store_true", help="short chains and coarse grids (rough numbers)"
     )
+    p.add_argument(
+        "--threads",
+        type=int,
+        metavar="N",
+        help="numba threads of the simulator (default: all cores; use 1 when several "
+        "analyses run side by side, threads competing for cores slow every fit 3-5x)",
+    )
     return p
-
-
-@contextlib.contextmanager
-def _staged(out: Path) -> Iterator[Path]:
-    work = out.with_name(out.name + ".partial")
-    if work.exists():
-        shutil.rmtree(work)
-    work.mkdir(parents=True)
-    yield work
-    old = out.with_name(out.name + ".old")
-    if old.exists():
-        shutil.rmtree(old)
-    if out.exists():
-        out.rename(old)
-    work.rename(out)
-    if old.exists():
-        shutil.rmtree(old)
 
 
 def main(
@@ -186,6 +175,12 @@ def main(
     if add_arguments is not None:
         add_arguments(p)
     args = p.parse_args(argv)
+    if args.threads is not None:
+        if args.threads < 1:
+            p.error("--threads must be >= 1")
+        import numba
+
+        numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     try:
         experiment = load_experiment(args.data)
         table = load_jumps(args.data, experiment)
@@ -195,52 +190,52 @@ def main(
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    with _staged(out) as work:
-        ctx = Context(
-            name=name,
-            data=Path(args.data),
-            out=work,
-            seed=int(args.seed),
-            fast=bool(args.fast),
-            experiment=experiment,
-            table=table,
-            label=synthetic_label(table),
-            args=args,
-        )
-        try:
+    try:  # an error inside leaves OUT untouched (OUT.partial is left for inspection)
+        with staged_folder(out, resume=False) as work:
+            ctx = Context(
+                name=name,
+                data=Path(args.data),
+                out=work,
+                seed=int(args.seed),
+                fast=bool(args.fast),
+                experiment=experiment,
+                table=table,
+                label=synthetic_label(table),
+                args=args,
+            )
             body, numbers = analysis(ctx)
-        except InputError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        seconds = time.perf_counter() - t0
-        heading = (doc or name).strip().splitlines()[0].rstrip(".")
-        provenance = {
-            "analysis": name,
-            "data": str(ctx.data),
-            "data_sha256": data_hash(experiment, table),
-            "data_label": ctx.label or "measured (no synthetic marker in the source column)",
-            "seed": ctx.seed,
-            "fast": ctx.fast,
-            "interval": f"{CI_PROB:.0%} equal-tailed",
-            "granbayes": granbayes.__version__,
-            "runtime_s": round(seconds, 1),
-        }
-        lines = [f"# {heading}", ""]
-        if ctx.label:
-            lines += [f"**{ctx.label}** — not measured.", ""]
-        lines += [body.strip(), ""]
-        lines += [
-            "---",
-            f"Data `{ctx.data}` (sha256 {provenance['data_sha256'][:12]}…), seed {ctx.seed}"
-            + (", **fast mode (short chains, coarse grids)**" if ctx.fast else "")
-            + f"; intervals are {CI_PROB:.0%} equal-tailed; {seconds:.0f} s.",
-            "Files: " + ", ".join(f"`{w}`" for w in ctx.written),
-            "",
-        ]
-        (work / "summary.md").write_text("\n".join(lines))
-        (work / "summary.json").write_text(
-            json.dumps({**provenance, "results": _jsonable(numbers)}, indent=2) + "\n"
-        )
+            seconds = time.perf_counter() - t0
+            heading = (doc or name).strip().splitlines()[0].rstrip(".")
+            provenance = {
+                "analysis": name,
+                "data": str(ctx.data),
+                "data_sha256": data_hash(experiment, table),
+                "data_label": ctx.label or "measured (no synthetic marker in the source column)",
+                "seed": ctx.seed,
+                "fast": ctx.fast,
+                "interval": f"{CI_PROB:.0%} equal-tailed",
+                "granbayes": granbayes.__version__,
+                "runtime_s": round(seconds, 1),
+            }
+            lines = [f"# {heading}", ""]
+            if ctx.label:
+                lines += [f"**{ctx.label}** — not measured.", ""]
+            lines += [body.strip(), ""]
+            lines += [
+                "---",
+                f"Data `{ctx.data}` (sha256 {provenance['data_sha256'][:12]}…), seed {ctx.seed}"
+                + (", **fast mode (short chains, coarse grids)**" if ctx.fast else "")
+                + f"; intervals are {CI_PROB:.0%} equal-tailed; {seconds:.0f} s.",
+                "Files: " + ", ".join(f"`{w}`" for w in ctx.written),
+                "",
+            ]
+            (work / "summary.md").write_text("\n".join(lines))
+            (work / "summary.json").write_text(
+                json.dumps({**provenance, "results": _jsonable(numbers)}, indent=2) + "\n"
+            )
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     print("\n".join(lines))
     print(f"wrote {out}/")
     return 0

@@ -173,6 +173,18 @@ def analyse(ctx: common.Context) -> tuple[str, dict]:
                     f"- The per-command 90% intervals of `{pname}` share no common value at "
                     f"φ = {', '.join(f'{p:g}' for p in phis)}."
                 )
+        confounded = sorted({p for phis in disjoint.values() for p in phis} & set(one), key=float)
+        if confounded:
+            body.append(
+                "- Where PSIS-LOO prefers the shared law but per-command intervals are "
+                "disjoint (φ = "
+                + ", ".join(f"{p:g}" for p in confounded)
+                + "), a single command does not identify the coefficients separately (e.g. "
+                "a lower k traded against another term, or a prior-dominated coefficient): "
+                "the intervals differ along a trade-off that the shared fit resolves, not "
+                "because the commands need different laws. The predictive comparison is "
+                "the verdict."
+            )
         if shaky:
             body.append(
                 "- Pareto k > 0.7 at φ = "

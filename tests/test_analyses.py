@@ -20,6 +20,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from granbayes import COMMAND_NAMES
+
 ROOT = Path(__file__).resolve().parents[1]
 ANALYSES = ROOT / "analyses"
 REFERENCE = ROOT / "data" / "reference"
@@ -87,6 +89,12 @@ def test_bad_input_is_refused_without_touching_the_output(tmp_path: Path, small_
     code = _module("heights_vs_phi").main([str(bad), "--out", str(out)])
     assert code == 2
     assert (out / "keep.txt").read_text() == "earlier result"
+    # a bad option found inside the analysis: same exit code, OUT still untouched
+    code = _module("one_force_law").main(
+        [str(small_data), "--out", str(out), "--terms", "depth,dragg"]
+    )
+    assert code == 2
+    assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
 
 
 def test_heights_vs_phi(tmp_path: Path, small_data: Path) -> None:
@@ -133,14 +141,7 @@ def test_one_force_law(tmp_path: Path, small_data: Path) -> None:
     assert 0.592 in law["per_command_preferred_at"]
     assert law["elpd_diff"]["0.592"] < -10.0
     intervals = pd.read_csv(tmp_path / "o" / "intervals_depth_drag.csv")
-    assert set(intervals["command"]) == {
-        "shared",
-        "single",
-        "preload",
-        "stutter",
-        "delayed_stutter",
-        "delayed_stutter_preload",
-    }
+    assert set(intervals["command"]) == {"shared", *COMMAND_NAMES}
 
 
 def test_misfit_maps(tmp_path: Path, small_data: Path) -> None:
@@ -177,11 +178,29 @@ def test_optimal_jumping(tmp_path: Path, small_data: Path) -> None:
     reliable = loose["reliable_optimum"]
     assert reliable["q05_predictive_mm"] < reliable["expected_mm"]
     grid = pd.read_csv(tmp_path / "j" / "grid_results.csv")
-    assert set(grid["command"]) == {
-        "single",
-        "preload",
-        "stutter",
-        "delayed_stutter",
-        "delayed_stutter_preload",
-    }
+    assert set(grid["command"]) == set(COMMAND_NAMES)
     assert (grid["amplitude_mm"] <= res["max_amplitude_mm"] + 1e-9).all()
+
+
+def test_added_mass_impulse(tmp_path: Path, small_data: Path) -> None:
+    """Impulses are non-negative and converge with the step (< 2% on doubling it; the
+    flux quadrature agrees within 2%); correlations are proper with ordered intervals; the
+    stutter, whose intrusions are fastest, has the largest impulse per unit kappa (the
+    thesis: added mass matters most for the stutter jump)."""
+    res = run("added_mass_impulse", small_data, tmp_path / "a")
+    check = res["integral_check"]
+    assert check["max_rel_diff_double_step"] < 0.02
+    assert check["max_rel_diff_flux_quadrature"] < 0.02
+    for key in ("r_duration", "r_impulse", "r_impulse_per_kappa"):
+        r = res[key]
+        lo, hi = r["interval"]
+        assert -1.0 <= lo <= r["median"] <= hi <= 1.0
+        assert 0.0 <= r["p_positive"] <= 1.0
+    cells = pd.DataFrame(res["cells"])
+    assert len(cells) == 10  # 5 commands x 2 phi x one frequency
+    assert (cells["n_failed"] == 0).all()
+    assert (cells["impulse_mN_s_lo"] >= 0).all()
+    assert (cells["impulse_per_kappa_mN_s_median"] > 0).all()
+    assert ((cells["duration_ms_median"] > 0) & (cells["duration_ms_median"] < 600)).all()
+    assert ((cells["kappa_lo"] >= 0) & (cells["kappa_hi"] <= 3.0)).all()
+    assert res["largest_impulse_per_kappa_command"] == "stutter"
