@@ -29,6 +29,7 @@ import granbayes
 from granbayes import COMMAND_NAMES, Experiment, InputError, load_experiment, load_jumps
 from granbayes.cli import staged_folder
 from granbayes.fit import FitConfig, FitResult, data_hash, fit
+from granbayes.likelihood import SETTING_COLUMNS  # per-row command settings of a jumps table
 from granbayes.sampler import SamplerSettings
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -314,10 +315,14 @@ def interval(values: np.ndarray, ci_prob: float = CI_PROB) -> tuple[float, float
     return float(med), float(lo), float(hi)
 
 
+def fmt_triple(med: float, lo: float, hi: float, fmt: str = ".3g") -> str:
+    """``"median [lo, hi]"`` of a precomputed triple, each value formatted with ``fmt``."""
+    return f"{med:{fmt}} [{lo:{fmt}}, {hi:{fmt}}]"
+
+
 def fmt_interval(values: np.ndarray, digits: int = 3, ci_prob: float = CI_PROB) -> str:
-    """``"median [lo, hi]"`` with ``digits`` significant digits."""
-    med, lo, hi = interval(values, ci_prob)
-    return f"{med:.{digits}g} [{lo:.{digits}g}, {hi:.{digits}g}]"
+    """``"median [lo, hi]"`` of ``values`` with ``digits`` significant digits."""
+    return fmt_triple(*interval(values, ci_prob), fmt=f".{digits}g")
 
 
 def markdown_table(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
@@ -332,10 +337,6 @@ def markdown_table(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
     lines = ["| " + " | ".join(map(str, cols)) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in df.itertuples(index=False)]
     return "\n".join(lines)
-
-
-#: Per-row command settings of a jumps table (physics-model.md section 4).
-SETTING_COLUMNS = ("amplitude_mm", "freq_hz", "delay_ms", "settle_periods")
 
 
 def cell_experiment(experiment: Experiment, row: Mapping[str, object]) -> Experiment:

@@ -309,11 +309,6 @@ def correlation(
     return {**out["pearson"], "spearman": out["spearman"]}
 
 
-def _iv(med: float, lo: float, hi: float, fmt: str = ".3g") -> str:
-    """``"med [lo, hi]"`` with the given format."""
-    return f"{med:{fmt}} [{lo:{fmt}}, {hi:{fmt}}]"
-
-
 def _decisive(p: float) -> str:
     """How sure a 'largest' is: its probability over draw indices, in words."""
     words = "clear" if p >= 0.9 else "likely" if p >= 0.6 else "not decisive"
@@ -324,7 +319,8 @@ def _fmt_r(r: dict) -> str:
     """A correlation entry of :func:`correlation` in words."""
     return (
         f"{r['point']:+.2f} from the medians; propagated "
-        f"{_iv(r['median'], *r['interval'], '+.2f')}, P(r > 0) = {r['p_positive']:.2f}"
+        f"{common.fmt_triple(r['median'], *r['interval'], '+.2f')}, "
+        f"P(r > 0) = {r['p_positive']:.2f}"
     )
 
 
@@ -406,7 +402,8 @@ def plot_vs_kappa(
     fig.supxlabel(
         f"r(κ, {quantity.split('_')[0]}) across {len(cells)} cells. Pearson: {_fmt_r(corr)}.\n"
         f"Spearman: {sp['point']:+.2f} from the medians; propagated "
-        f"{_iv(sp['median'], *sp['interval'], '+.2f')}. Bars: 90% posterior intervals "
+        f"{common.fmt_triple(sp['median'], *sp['interval'], '+.2f')}. "
+        "Bars: 90% posterior intervals "
         f"(κ: fit posterior, prior uniform on [0, {KAPPA_PRIOR_WIDTH:g}]; y: simulated draws).",
         fontsize=8,
     )
@@ -677,7 +674,8 @@ def _cell_markdown(table: pd.DataFrame) -> str:
 
     def col(stem: str, fmt: str) -> list[str]:
         return [
-            _iv(*v, fmt) for v in table[[f"{stem}_median", f"{stem}_lo", f"{stem}_hi"]].to_numpy()
+            common.fmt_triple(*v, fmt)
+            for v in table[[f"{stem}_median", f"{stem}_lo", f"{stem}_hi"]].to_numpy()
         ]
 
     return common.markdown_table(
@@ -752,7 +750,7 @@ def analyse(ctx: common.Context) -> tuple[str, dict]:
 
     def spearman(r: dict) -> str:
         s = r["spearman"]
-        propagated = _iv(s["median"], *s["interval"], "+.2f")
+        propagated = common.fmt_triple(s["median"], *s["interval"], "+.2f")
         return f"{s['point']:+.2f} from the medians, propagated {propagated}"
 
     body = [
@@ -818,10 +816,12 @@ def analyse(ctx: common.Context) -> tuple[str, dict]:
         {
             "quantity vs κ": QUANTITIES[q][0],
             "Pearson (medians)": c["point"],
-            "Pearson propagated": _iv(c["median"], *c["interval"], "+.2f"),
+            "Pearson propagated": common.fmt_triple(c["median"], *c["interval"], "+.2f"),
             "P(r > 0)": f"{c['p_positive']:.2f}",
             "Spearman (medians)": c["spearman"]["point"],
-            "Spearman propagated": _iv(c["spearman"]["median"], *c["spearman"]["interval"], "+.2f"),
+            "Spearman propagated": common.fmt_triple(
+                c["spearman"]["median"], *c["spearman"]["interval"], "+.2f"
+            ),
         }
         for q, c in corr.items()
     ]

@@ -912,8 +912,7 @@ def cell_table(results: Sequence[PhiResult]) -> pd.DataFrame:
 
 
 def _fmt(iv: tuple[float, float, float], digits: int = 2) -> str:
-    med, lo, hi = iv
-    return f"{med:.{digits}g} [{lo:.{digits}g}, {hi:.{digits}g}]"
+    return common.fmt_triple(*iv, fmt=f".{digits}g")
 
 
 def _acceptable_extent(r: PhiResult, command: str) -> str:

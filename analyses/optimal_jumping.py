@@ -52,7 +52,7 @@ DELAYED = ("delayed_stutter", "delayed_stutter_preload")
 #: Noise replicates per posterior draw for the predictive quantile (no extra simulation).
 N_NOISE = 20
 #: Setting columns of the grid table.
-SETTING_COLUMNS = ("amplitude_mm", "freq_hz", "delay_ms", "settle_periods")
+SETTING_COLUMNS = common.SETTING_COLUMNS
 
 
 # ----------------------------------------------------------------------------------------
@@ -760,8 +760,7 @@ def plot_summary(ctx: common.Context, results: list[PhiResult]) -> Figure:
 # ----------------------------------------------------------------------------------------
 def _interval_text(v: tuple[float, float, float], digits: int = 3) -> str:
     """``"median [lo, hi]"`` of a precomputed (median, lo, hi) triple."""
-    med, lo, hi = v
-    return f"{med:.{digits}g} [{lo:.{digits}g}, {hi:.{digits}g}]"
+    return common.fmt_triple(*v, fmt=f".{digits}g")
 
 
 def analyse(ctx: common.Context) -> tuple[str, dict]:
