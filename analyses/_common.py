@@ -30,6 +30,8 @@ from granbayes import COMMAND_NAMES, Experiment, InputError, load_experiment, lo
 from granbayes.cli import staged_folder
 from granbayes.fit import FitConfig, FitResult, data_hash, fit
 from granbayes.likelihood import SETTING_COLUMNS  # per-row command settings of a jumps table
+from granbayes.report import markdown_table as _markdown_table
+from granbayes.report import source_label
 from granbayes.sampler import SamplerSettings
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -112,18 +114,6 @@ class Context:
         self.written.append(f"{stem}.csv")
 
 
-def synthetic_label(table: pd.DataFrame) -> str:
-    """``"SYNTHETIC data (<generator>)"`` if the ``source`` column says so, else ``""``."""
-    if "source" not in table:
-        return ""
-    sources = sorted({str(s) for s in table["source"] if str(s).startswith("synthetic")})
-    if not sources:
-        return ""
-    return (
-        "SYNTHETIC data (" + "; ".join(s.removeprefix("synthetic:").strip() for s in sources) + ")"
-    )
-
-
 def parser(doc: str | None) -> argparse.ArgumentParser:
     """The arguments every analysis takes (description: the script's docstring)."""
     text = (doc or "").strip()
@@ -201,7 +191,7 @@ def main(
                 fast=bool(args.fast),
                 experiment=experiment,
                 table=table,
-                label=synthetic_label(table),
+                label=source_label(table["source"]) if "source" in table else "",
                 args=args,
             )
             body, numbers = analysis(ctx)
@@ -325,22 +315,13 @@ def fmt_interval(values: np.ndarray, digits: int = 3, ci_prob: float = CI_PROB) 
     return fmt_triple(*interval(values, ci_prob), fmt=f".{digits}g")
 
 
-def markdown_table(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
-    """A GitHub Markdown table (no tabulate dependency)."""
-    cols = list(df.columns)
-
-    def cell(v: object) -> str:
-        if isinstance(v, float | np.floating):
-            return "" if not math.isfinite(v) else format(v, floatfmt)
-        return str(v)
-
-    lines = ["| " + " | ".join(map(str, cols)) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in df.itertuples(index=False)]
-    return "\n".join(lines)
-
-
 def cell_experiment(experiment: Experiment, row: Mapping[str, object]) -> Experiment:
     """The experiment with the command settings of one data row (or cell) applied."""
     return experiment.replace(
         **{k: float(row[k]) for k in SETTING_COLUMNS if k in row and pd.notna(row[k])}
     )
+
+
+def markdown_table(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
+    """A GitHub Markdown table; non-finite numbers are left blank."""
+    return _markdown_table(df, floatfmt, missing="")

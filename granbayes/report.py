@@ -8,8 +8,9 @@ Figures are built with matplotlib's object API (no pyplot state), corner plots w
 from __future__ import annotations
 
 import json
+import math
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,8 @@ from .forces import PARAMETERS
 
 __all__ = [
     "data_label",
+    "markdown_table",
+    "source_label",
     "load_truth",
     "plot_corner",
     "plot_predictive",
@@ -67,11 +70,24 @@ def data_label(dt: xr.DataTree) -> str:
     obs = dt.observed_data.to_dataset()
     if "source" not in obs.coords:
         return ""
-    sources = sorted({str(v) for v in obs["source"].values if str(v).startswith("synthetic")})
-    if not sources:
+    return source_label(obs["source"].values)
+
+
+def source_label(sources: Iterable[object]) -> str:
+    """``"SYNTHETIC data (<generator>)"`` if any of the ``source`` values is synthetic, else ``""``.
+
+    Parameters
+    ----------
+    sources : iterable
+        The ``source`` column of a jumps table (one value per jump).
+    """
+    synthetic = sorted({str(v) for v in sources if str(v).startswith("synthetic")})
+    if not synthetic:
         return ""
     return (
-        "SYNTHETIC data (" + "; ".join(s.removeprefix("synthetic:").strip() for s in sources) + ")"
+        "SYNTHETIC data ("
+        + "; ".join(s.removeprefix("synthetic:").strip() for s in synthetic)
+        + ")"
     )
 
 
@@ -235,14 +251,27 @@ def plot_parameters_vs_phi(
     return fig
 
 
-def _markdown(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
+def markdown_table(df: pd.DataFrame, floatfmt: str = ".4g", missing: str | None = None) -> str:
+    """A GitHub Markdown table of ``df`` (no tabulate dependency).
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+    floatfmt : str
+        Format of floating-point cells.
+    missing : str, optional
+        Text of non-finite floats (default: formatted like any float, ``nan``).
+    """
     cols = list(df.columns)
     lines = ["| " + " | ".join(str(c) for c in cols) + " |", "|" + "---|" * len(cols)]
     for row in df.itertuples(index=False):
         cells = []
         for v in row:
             if isinstance(v, float | np.floating):
-                cells.append(format(float(v), floatfmt))
+                finite = math.isfinite(v)
+                cells.append(
+                    missing if missing is not None and not finite else format(float(v), floatfmt)
+                )
             else:
                 cells.append(str(v))
         lines.append("| " + " | ".join(cells) + " |")
@@ -305,9 +334,9 @@ def write_fit_report(
     ]
     if result.warnings:
         lines += ["**Warnings**", ""] + [f"- {w}" for w in result.warnings] + [""]
-    lines += ["## Posterior summary", "", _markdown(summary), "", "## Sampler", ""]
+    lines += ["## Posterior summary", "", markdown_table(summary), "", "## Sampler", ""]
     lines += [
-        _markdown(
+        markdown_table(
             diag[
                 [
                     "run",
@@ -333,7 +362,7 @@ def write_fit_report(
             "than 2 SE). `*_intervals_overlap`: whether the per-command "
             f"{gdt.CI_PROB:.0%} intervals of a parameter share a common value.",
             "",
-            _markdown(uniqueness),
+            markdown_table(uniqueness),
             "",
         ]
     figs: dict[str, Figure] = {"predictive.png": plot_predictive(dt)}
@@ -504,7 +533,12 @@ def write_diagnosis_report(diagnosis, out: Path) -> list[Path]:
             for c in rec["candidates"]
         ]
     )
-    lines += [_markdown(cand) if len(cand) else "(none)", "", f"Rule: {rec['rule']['text']}.", ""]
+    lines += [
+        markdown_table(cand) if len(cand) else "(none)",
+        "",
+        f"Rule: {rec['rule']['text']}.",
+        "",
+    ]
     if sel["parameters"]:
         lines += ["## The added physics", "", f"Posterior ({sel['interval']}):", ""]
         for name, per_phi in sel["parameters"].items():
