@@ -99,42 +99,57 @@ class _Constants:
         return self.k * z + self.k2 * z * z
 
 
+#: Grain-scale compaction length l_c [m] of the ``compaction`` term (physics-model.md s. 8).
+COMPACTION_LENGTH = 1e-3
+
+
 @dataclass
 class _Bed:
     """The bed's memory [m, N].
 
     ``z_max`` is the crater depth and ``z_entry`` the depth where the current advancing
-    episode started. ``compacted`` is set when the first advancing episode ends, at depth
-    ``z_c`` where the fresh bed's yield force was ``f_c``: below it the loading stiffness
-    is ``1 + c_comp`` times that of the fresh bed (the ``compaction`` term).
+    episode started. The loading curve is anchored at depth ``z_c`` (force ``f_c``, fresh
+    strength ``fs_c`` there) with stiffness multiplier ``mult`` below it: every advancing
+    episode that ends at depth ``z`` re-anchors it there with ``mult = 1 + c_comp (1 -
+    exp(-z / l_c))`` (the ``compaction`` term; ``mult = 1`` without it).
     """
 
     z_max: float
     z_entry: float
-    compacted: bool = False
     z_c: float = 0.0
     f_c: float = 0.0
+    fs_c: float = 0.0
+    mult: float = 1.0
 
     def yield_force(self, z: float, const: _Constants) -> float:
-        """Force needed to advance the foot at depth ``z`` (rate terms excluded) [N]."""
-        fresh = const.static_strength(z)
-        if self.compacted and z > self.z_c:
-            return self.f_c + (1.0 + const.c_comp) * (fresh - self.f_c)
-        return fresh
+        """Force needed to advance the foot at depth ``z >= z_c`` (rate terms excluded) [N]."""
+        return self.f_c + self.mult * (const.static_strength(z) - self.fs_c)
+
+    def yield_slope(self, z: float, const: _Constants) -> float:
+        """Slope ``F_yield'(z)`` of the loading curve at depth ``z >= z_c`` [N/m]."""
+        return self.mult * (const.k + 2.0 * const.k2 * z)
 
     def end_episode(self, z: float, const: _Constants) -> None:
         """The foot stopped advancing at depth ``z``: the crater bottom is there."""
-        if not self.compacted and const.c_comp > 0.0:
-            self.compacted, self.z_c, self.f_c = True, z, const.static_strength(z)
+        if const.c_comp > 0.0:
+            f_c = self.yield_force(z, const)
+            self.z_c, self.f_c, self.fs_c = z, f_c, const.static_strength(z)
+            self.mult = 1.0 + const.c_comp * (1.0 - math.exp(-z / COMPACTION_LENGTH))
         self.z_max = z
+
+    def unloading_slope(self, const: _Constants) -> float:
+        """Slope ``r_unload F_yield'(z_max)`` of the elastic unloading line [N/m]."""
+        return const.r_unload * self.yield_slope(self.z_max, const)
 
     def unloading_force(self, z: float, const: _Constants) -> float:
         """Force on the elastic unloading line at depth ``z`` (may be negative) [N]."""
-        return self.yield_force(self.z_max, const) - const.r_unload * const.k * (self.z_max - z)
+        return self.yield_force(self.z_max, const) - self.unloading_slope(const) * (
+            self.z_max - z
+        )
 
     def release_depth(self, const: _Constants) -> float:
         """Depth at which the unloading line reaches zero force [m]."""
-        return self.z_max - self.yield_force(self.z_max, const) / (const.r_unload * const.k)
+        return self.z_max - self.yield_force(self.z_max, const) / self.unloading_slope(const)
 
 
 def _cone_volume(h: float, radius: float) -> float:
@@ -334,7 +349,9 @@ def _start(program: CommandProgram, const: _Constants) -> tuple[np.ndarray, _Bed
             z0 = weight / const.k
         x_f = -z0
         x_r = x_f - const.m_upper * G / const.k_spring  # spring carries the upper mass
-        return np.array([x_r, x_f, 0.0, 0.0]), _Bed(z_max=z0, z_entry=z0)
+        bed = _Bed(z_max=z0, z_entry=z0)
+        bed.end_episode(z0, const)  # placing the robot is an intrusion to z0 that has ended
+        return np.array([x_r, x_f, 0.0, 0.0]), bed
     return np.zeros(4), _Bed(z_max=0.0, z_entry=0.0)
 
 

@@ -88,8 +88,13 @@ _C_M, _C_MMOT, _C_MF, _C_KS, _C_CS = 0, 1, 2, 3, 4
 _C_K, _C_CD, _C_AM, _C_R, _C_K2, _C_B = 5, 6, 7, 8, 9, 10
 _C_RAD, _C_HFULL, _C_OMEGA, _C_SEGCOEF, _C_SEGT0, _C_SEGOFF = 11, 12, 13, 14, 15, 16
 _C_ZMAX, _C_ZENTRY, _C_ZFREE, _C_FSMAX = 17, 18, 19, 20
-_C_COMP, _C_ZC, _C_FC, _C_MULT = 21, 22, 23, 24
-_C_SIZE = 25
+_C_COMP, _C_ZC, _C_FC, _C_MULT, _C_FSC, _C_SUNL = 21, 22, 23, 24, 25, 26
+_C_SIZE = 27
+
+#: Grain-scale compaction length l_c [m] of the ``compaction`` term: the depth of intrusion
+#: over which a loose bed approaches its compacted state (about one poppy-seed diameter;
+#: docs/physics-model.md section 8).
+COMPACTION_LENGTH = 1e-3
 
 # events (each is g(y) crossing from <= 0 to > 0)
 _EV_NONE = -1
@@ -121,28 +126,54 @@ def static_strength(z, k, k2):
 
 
 @njit(cache=True)
-def _yield_force(z, c):
-    """Yield force [N] of the bed at depth z, compacted below z_c after the first episode.
+def static_slope(z, k, k2):
+    """F_static'(z) = k + 2 k2 z [N/m]: slope of the fresh bed's yield force at depth z [m]."""
+    return k + 2.0 * k2 * z
 
-    ``compaction``: once the first advancing episode ends at depth ``z_c``, the grains
-    below are denser and the loading stiffness below ``z_c`` is ``(1 + c_comp)`` times
-    that of the fresh bed: ``F = F_c + (1 + c_comp) (F_static(z) - F_c)``, continuous at
-    ``z_c`` (``c[_C_MULT]`` is 1 until then).
+
+@njit(cache=True)
+def compaction_multiplier(z_c, c_comp):
+    """Loading-stiffness multiplier ``1 + c_comp (1 - exp(-z_c / l_c))`` [-].
+
+    ``z_c`` [m] is the depth the bed has been intruded to when an advancing episode ends;
+    the bed below it has compacted by the fraction ``1 - exp(-z_c / l_c)`` of its full
+    compaction ``c_comp`` (``l_c = COMPACTION_LENGTH``).
+    """
+    return 1.0 + c_comp * -math.expm1(-z_c / COMPACTION_LENGTH)
+
+
+@njit(cache=True)
+def _yield_force(z, c):
+    """Yield force F_yield [N] of the bed at depth z >= z_c [m] (below the last anchor).
+
+    ``compaction``: when an advancing episode ends at depth ``z_c`` the loading curve below
+    is re-anchored there, ``F_yield(z) = F_c + m (F_static(z) - F_static(z_c))`` with
+    ``F_c = F_yield(z_c)`` and ``m = compaction_multiplier(z_c)`` (``m = 1`` before any
+    episode has ended, or without the term). The curve is continuous, and since ``m`` never
+    decreases its slope only steps up: it stays convex. Only depths at or below the crater
+    bottom (``z >= z_c``) can still yield, so only they are asked for.
     """
     base = static_strength(z, c[_C_K], c[_C_K2])
     mult = c[_C_MULT]
-    if mult != 1.0 and z > c[_C_ZC]:
-        return c[_C_FC] + mult * (base - c[_C_FC])
+    if mult != 1.0:
+        return c[_C_FC] + mult * (base - c[_C_FSC])
     return base
 
 
 @njit(cache=True)
+def _yield_slope(z, c):
+    """F_yield'(z) [N/m]: slope of the loading curve at depth z >= z_c [m]."""
+    return c[_C_MULT] * static_slope(z, c[_C_K], c[_C_K2])
+
+
+@njit(cache=True)
 def _end_of_episode(z, c):
-    """Bed memory when an advancing episode ends at depth z [m] (the first compacts)."""
-    if c[_C_MULT] == 1.0 and c[_C_COMP] > 0.0:
+    """Bed memory when an advancing episode ends at depth z [m]: the bed below compacts."""
+    if c[_C_COMP] > 0.0:
+        c[_C_FC] = _yield_force(z, c)
+        c[_C_FSC] = static_strength(z, c[_C_K], c[_C_K2])
         c[_C_ZC] = z
-        c[_C_FC] = static_strength(z, c[_C_K], c[_C_K2])
-        c[_C_MULT] = 1.0 + c[_C_COMP]
+        c[_C_MULT] = compaction_multiplier(z, c[_C_COMP])
 
 
 @njit(cache=True)
@@ -166,7 +197,7 @@ def _ground(z, zd, mode, c):
             return fg, am * cone_volume(c[_C_HFULL], radius), 0.0
         return fg, 0.0, 0.0
     if mode == MODE_CONTACT:
-        return c[_C_FSMAX] - c[_C_R] * c[_C_K] * (c[_C_ZMAX] - z), 0.0, 0.0
+        return c[_C_FSMAX] - c[_C_SUNL] * (c[_C_ZMAX] - z), 0.0, 0.0
     return 0.0, 0.0, 0.0
 
 
@@ -259,7 +290,7 @@ def _g(kind, y, c):
     if kind == _EV_REENTER:
         return -y[1] - c[_C_ZMAX]
     if kind == _EV_RELEASE:
-        return -(c[_C_FSMAX] - c[_C_R] * c[_C_K] * (c[_C_ZMAX] + y[1]))
+        return -(c[_C_FSMAX] - c[_C_SUNL] * (c[_C_ZMAX] + y[1]))
     if kind == _EV_TOUCH:
         return -y[1] - c[_C_ZFREE]
     return -y[3]  # _EV_APEX
@@ -273,7 +304,7 @@ def _gdot(kind, y, f, c):
     if kind == _EV_REENTER or kind == _EV_TOUCH:
         return -y[3]
     if kind == _EV_RELEASE:
-        return c[_C_R] * c[_C_K] * y[3]
+        return c[_C_SUNL] * y[3]
     return -f[1]
 
 
@@ -283,7 +314,7 @@ def _gtol(kind, c):
     if kind == _EV_REENTER or kind == _EV_TOUCH:
         return 1e-13
     if kind == _EV_RELEASE:
-        return 1e-13 * c[_C_R] * c[_C_K]
+        return 1e-13 * c[_C_SUNL]
     return 1e-11
 
 
@@ -404,7 +435,7 @@ def _valid_row(row):
         return False
     if row[ROW_RHO] < 0 or not (0.0 < row[ROW_PHI] < 1.0):
         return False
-    if row[_P_K] <= 0 or row[_P_R] <= 0:
+    if row[_P_K] <= 0 or row[_P_R] < 1.0:
         return False
     return (
         row[_P_CD] >= 0
@@ -417,10 +448,15 @@ def _valid_row(row):
 
 @njit(cache=True)
 def _set_memory(c, zmax):
-    """Set the crater depth z_max [m] and the quantities derived from it."""
+    """Set the crater depth z_max [m] and the unloading line derived from it.
+
+    The unloading line starts at ``F_yield(z_max)`` with slope ``r_unload F_yield'(z_max)``
+    (physics-model.md section 3) and reaches zero force at depth ``z_free``.
+    """
     c[_C_ZMAX] = zmax
     c[_C_FSMAX] = _yield_force(zmax, c)
-    c[_C_ZFREE] = zmax - c[_C_FSMAX] / (c[_C_R] * c[_C_K])
+    c[_C_SUNL] = c[_C_R] * _yield_slope(zmax, c)
+    c[_C_ZFREE] = zmax - c[_C_FSMAX] / c[_C_SUNL]
 
 
 @njit(cache=True)
@@ -487,6 +523,8 @@ def _initial_state(c, start):
         weight = (m_upper + c[_C_MF]) * G
         k, k2 = c[_C_K], c[_C_K2]
         z0 = 2.0 * weight / (k + math.sqrt(k * k + 4.0 * k2 * weight))  # F_static(z0) = W
+        # placing the robot is a quasi-static intrusion to z0 that has ended: it compacts
+        _end_of_episode(z0, c)
         _set_memory(c, z0)
         c[_C_ZENTRY] = z0
         return (-z0 - m_upper * G / c[_C_KS], -z0, 0.0, 0.0)

@@ -242,13 +242,18 @@ _TOML_SECTIONS: dict[str, dict[str, _Range]] = {
 }
 
 #: Force-term parameter columns of a batch table (``docs/physics-model.md``).
-BATCH_FORCE_COLUMNS: tuple[str, ...] = ("k", "c_d", "kappa", "r_unload", "k2", "b")
+BATCH_FORCE_COLUMNS: tuple[str, ...] = ("k", "c_d", "kappa", "r_unload", "k2", "b", "c_comp")
 
 #: Per-row experiment override columns of a batch table (robot, then command settings).
 BATCH_EXPERIMENT_COLUMNS: tuple[str, ...] = (*_ROBOT_RANGES, *_COMMAND_RANGES)
 
+#: Allowed values of the force columns. ``r_unload >= 1`` (the bound of
+#: ``granbayes.forces``): an unloading line less steep than the loading curve would let the
+#: bed create energy. The other lower bounds are 0 here: a row with ``k = 0`` is simulated
+#: and fails alone, with its status.
 _FORCE_RANGES: dict[str, _Range] = {
-    name: (_POSITIVE if name == "r_unload" else _NON_NEGATIVE) for name in BATCH_FORCE_COLUMNS
+    name: (_Range(1.0, lower_closed=True) if name == "r_unload" else _NON_NEGATIVE)
+    for name in BATCH_FORCE_COLUMNS
 }
 
 #: The per-row command-setting columns of ``jumps.csv``, in output order.
@@ -849,7 +854,7 @@ def load_batch_table(path: str | Path) -> pd.DataFrame:
     path : str or Path
         A CSV file. Required columns: ``command``, ``phi`` [-]. Optional numeric columns:
         the force parameters :data:`BATCH_FORCE_COLUMNS` (``k``, ``c_d``, ``kappa``,
-        ``r_unload``, ``k2``, ``b``; units of ``docs/physics-model.md``) and the per-row
+        ``r_unload``, ``k2``, ``b``, ``c_comp``; units of ``docs/physics-model.md``) and the per-row
         experiment overrides :data:`BATCH_EXPERIMENT_COLUMNS` (units of
         ``experiment.toml``).
 
@@ -866,7 +871,7 @@ def load_batch_table(path: str | Path) -> pd.DataFrame:
         At the first problem in file order, naming the file, the 1-based data row and the
         column: unreadable, malformed or empty file, header only, missing required column,
         unknown command, ``phi`` not a number in (0, 1), a non-numeric or non-finite value
-        in an optional numeric column, a force parameter < 0 (``r_unload`` <= 0), or an
+        in an optional numeric column, a force parameter < 0 (``r_unload`` < 1), or an
         experiment override outside the range allowed by :func:`load_experiment`.
     """
     table = _read_csv(_file_in(path, None))

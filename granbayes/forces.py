@@ -132,13 +132,13 @@ TERMS: dict[str, ForceTerm] = {
         ),
         ForceTerm(
             "compaction",
-            "loading stiffness below the first crater times (1 + c_comp): a loose bed "
-            "compacted by the first intrusion",
+            "loading stiffness below the crater times 1 + c_comp (1 - exp(-z_c / l_c)) once an "
+            "intrusion to depth z_c has ended: a loose bed compacted by intrusion",
             (
                 Parameter(
                     "c_comp",
                     "-",
-                    "fractional stiffening after the first intrusion",
+                    "fractional stiffening of a fully compacted bed (intrusion >> l_c = 1 mm)",
                     0.0,
                     0.0,
                     100.0,
@@ -148,17 +148,16 @@ TERMS: dict[str, ForceTerm] = {
         ),
         ForceTerm(
             "unloading",
-            "elastic unloading line of slope r_unload k from the last yield point",
+            "elastic unloading line of slope r_unload F_yield'(z_max) from the last yield point",
             (
                 Parameter(
                     "r_unload",
                     "-",
-                    "unloading/loading stiffness ratio",
+                    "unloading/loading stiffness ratio (>= 1: the bed never creates energy)",
                     20.0,
-                    0.0,
+                    1.0,
                     1e6,
                     (1, 50),
-                    True,
                 ),
             ),
         ),

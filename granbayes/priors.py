@@ -163,7 +163,7 @@ _DEFAULTS: dict[str, Prior] = {
         0.0,
         3.0,
         unit="-",
-        why="compaction raises the stiffness below the first crater <= 4x",
+        why="a fully compacted loose bed is at most 4x stiffer below its crater",
     ),
     "r_unload": Prior(
         "loguniform",
@@ -178,6 +178,7 @@ _DEFAULTS: dict[str, Prior] = {
 }
 
 assert set(_DEFAULTS) == {p.name for p in PARAMETERS} | set(NOISE_PARAMETERS)
+_PARAMETER = {p.name: p for p in PARAMETERS}
 
 
 def default_priors() -> dict[str, Prior]:
@@ -239,4 +240,18 @@ def load_priors(path: str | Path, base: Mapping[str, Prior] | None = None) -> di
             )
         except ValueError as exc:
             raise InputError(str(exc), file=path, column=name) from None
+        problem = _outside_allowed(name, priors[name])
+        if problem:
+            raise InputError(problem, file=path, column=name)
     return priors
+
+
+def _outside_allowed(name: str, prior: Prior) -> str | None:
+    """Why a prior's support reaches outside the parameter's allowed values, or None."""
+    if name not in _PARAMETER:
+        return None  # a noise parameter: positive by its log-scale family
+    for end in ("lower", "upper"):
+        problem = _PARAMETER[name].check(getattr(prior, end))
+        if problem:
+            return f"prior {end} bound outside the allowed values: {problem}"
+    return None

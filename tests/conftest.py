@@ -10,9 +10,7 @@ property for a deeper local search.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
-import pytest
 from hypothesis import settings
 
 settings.register_profile(
@@ -20,18 +18,6 @@ settings.register_profile(
 )
 settings.register_profile("thorough", deadline=None, max_examples=500, database=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "granbayes"))
-
-#: Converged reference heights shared by every simulator of the project (a batch table).
-REFERENCE_HEIGHTS = Path(__file__).resolve().parents[2] / "shared" / "reference-heights.csv"
-
-
-@pytest.fixture(scope="session")
-def reference_heights_path() -> Path:
-    """Path of ``shared/reference-heights.csv`` (skips the test if it is absent)."""
-    if not REFERENCE_HEIGHTS.is_file():
-        pytest.skip(f"{REFERENCE_HEIGHTS} not found (shared/ must sit beside the repository)")
-    return REFERENCE_HEIGHTS
-
 
 def pytest_configure(config):
     """Under pytest-xdist, one numba thread per worker (2 workers x 2 threads on 2 cores

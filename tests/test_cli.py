@@ -19,7 +19,7 @@ from granbayes.cli import EXIT_FAILED_JUMP, EXIT_INPUT, EXIT_OK, atomic_path, ma
 from granbayes.experiment import COMMAND_NAMES, load_experiment
 from granbayes.simulator import simulate
 
-REFERENCE_HEIGHTS = Path(__file__).resolve().parents[2] / "shared" / "reference-heights.csv"
+REFERENCE_HEIGHTS = Path(__file__).resolve().parent / "data" / "reference-heights.csv"
 
 TRAJECTORY_COLUMNS = [
     "t_s",
@@ -169,7 +169,6 @@ def test_version(capsys: pytest.CaptureFixture[str]) -> None:
 # ----------------------------------------------------------------------------------------
 
 
-@pytest.mark.skipif(not REFERENCE_HEIGHTS.exists(), reason="shared reference table absent")
 def test_batch_reproduces_reference_heights(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

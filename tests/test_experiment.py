@@ -23,7 +23,7 @@ from granbayes.experiment import (
     load_jumps,
 )
 
-REFERENCE_HEIGHTS = Path(__file__).resolve().parents[2] / "shared" / "reference-heights.csv"
+REFERENCE_HEIGHTS = Path(__file__).resolve().parent / "data" / "reference-heights.csv"
 
 FULL_TOML = """\
 [robot]
@@ -514,8 +514,6 @@ def test_jumps_not_utf8(tmp_path: Path) -> None:
 
 
 def test_reference_heights_load() -> None:
-    if not REFERENCE_HEIGHTS.exists():
-        pytest.skip(f"{REFERENCE_HEIGHTS} not found")
     table = load_batch_table(REFERENCE_HEIGHTS)
     assert len(table) > 0
     assert set(table["command"]) <= set(COMMAND_NAMES)
