@@ -253,7 +253,7 @@ def analyse(ctx: common.Context) -> tuple[str, dict]:
     if len(dsp):
         loose = dsp[dsp["phi"] == dsp["phi"].min()]
         dense = dsp[dsp["phi"] == dsp["phi"].max()]
-        worst = loose.loc[loose["measured_minus_model_mm"].idxmax()]
+        worst = loose.loc[loose["measured_minus_model_mm"].abs().idxmax()]
         numbers["dsp_loosest"] = {
             "phi": float(worst["phi"]),
             "freq_hz": float(worst["freq_hz"]),
@@ -277,7 +277,10 @@ def analyse(ctx: common.Context) -> tuple[str, dict]:
             + (
                 "A law fitted on preload jumps **under-predicts** the delayed stutter preload "
                 "at low φ, as the thesis found."
-                if worst["measured_minus_model_mm"] > 0 and worst["diff_lo_mm"] > 0
+                if worst["diff_lo_mm"] > 0
+                else "A law fitted on preload jumps **over-predicts** the delayed stutter "
+                "preload at low φ: the opposite of the thesis's finding."
+                if worst["diff_hi_mm"] < 0
                 else "The under-prediction the thesis reported is not resolved in these data."
             )
         )

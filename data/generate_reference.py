@@ -12,7 +12,8 @@ The truth (SI):
 * ``depth``: ``k(phi) = 4000 + 1.5e5 x + 2.0e6 x^2`` [N/m], ``x = phi - phi_c``;
 * ``drag``: ``c_d = 10`` [kg/m];
 * ``compaction``: ``c_comp(phi) = 35 max(0, phi_c - phi)`` [-]: a loose bed is compacted
-  by the first intrusion (0.70 at phi = 0.592, none at and above phi_c);
+  by intrusion (full strength 0.70 at phi = 0.592, none at and above phi_c; the term's
+  physics is docs/physics-model.md section 8);
 * ``unloading``: the bed's default ``r_unload = 20``;
 * noise: Gaussian, ``sigma(phi) = 3.0 + 60 max(0, phi_c - phi)`` [mm] (looser beds
   scatter more), independent between trials.
