@@ -40,7 +40,7 @@ def main() -> None:
     d = diagnose(experiment, table, seed=args.seed, data_source="data/reference")
     t_loop = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
-        write_diagnosis_report(d, Path(tmp))
+        write_diagnosis_report(d.to_json(), d.selected.datatree, Path(tmp))
         report_md = (Path(tmp) / "report.md").read_text()
     wall = time.perf_counter() - t0
     rec = d.to_json()

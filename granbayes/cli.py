@@ -19,6 +19,10 @@ Exit codes
 3
     The simulation ran but at least one jump did not finish (status ``failed:...``, height
     NaN). Everything requested is still printed and written.
+4
+    ``fit`` or ``diagnose``: a sampler run did not converge (``granbayes.sampler``: the
+    autocorrelation, cross-ensemble R-hat and ESS criteria). Everything is written, with
+    the warnings; ``--allow-unconverged`` turns this into exit code 0.
 
 Adding a subcommand
 -------------------
@@ -63,6 +67,7 @@ __all__ = [
     "EXIT_FAILED_JUMP",
     "EXIT_INPUT",
     "EXIT_OK",
+    "EXIT_UNCONVERGED",
     "HARD_GROUND_FREQS_HZ",
     "HARD_GROUND_PARAMS",
     "SUBCOMMANDS",
@@ -77,6 +82,8 @@ __all__ = [
 
 #: Exit code of a successful run.
 EXIT_OK = 0
+#: Exit code of a fit or diagnosis whose sampler did not converge (results still written).
+EXIT_UNCONVERGED = 4
 #: Exit code of bad input (usage, files, values); nothing is written.
 EXIT_INPUT = 2
 #: Exit code when a jump did not finish (status ``failed:...``); outputs are still written.
@@ -539,7 +546,7 @@ def _demo_fit(out: Path, data: Path, seed: int) -> None:
     result = fit(experiment, table, config, seed=seed, data_source=source)
     print("One force law for all five commands? (PSIS-LOO per volume fraction) ...")
     uniqueness = compare_commands(experiment, table, result, seed=seed)
-    write_fit_report(result, out, truth=truth, uniqueness=uniqueness)
+    write_fit_report(result.datatree, out, truth=truth, uniqueness=uniqueness)
     for w in result.warnings:
         print(f"granbayes: warning: {w}", file=sys.stderr)
     print((out / "summary.md").read_text())
@@ -626,16 +633,39 @@ def _add_inference_arguments(parser: argparse.ArgumentParser, max_steps: int) ->
     )
     parser.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
     parser.add_argument("--priors", type=Path, help="TOML file of prior overrides")
-    parser.add_argument("--walkers", type=int, default=16, help="emcee walkers (default 16)")
+    parser.add_argument(
+        "--walkers",
+        type=int,
+        default=8,
+        help="emcee walkers per ensemble (default 8; raised to 2 x dimensions if fewer)",
+    )
+    parser.add_argument(
+        "--ensembles",
+        type=int,
+        default=4,
+        help="independent ensembles per run, which must agree (default 4)",
+    )
     parser.add_argument(
         "--max-steps", type=int, default=max_steps, help=f"step cap (default {max_steps})"
     )
     parser.add_argument("--threads", type=int, help="numba threads (default: all cores)")
+    parser.add_argument(
+        "--quiet", action="store_true", help="no progress bars or progress messages"
+    )
+    parser.add_argument(
+        "--allow-unconverged",
+        action="store_true",
+        help=f"exit 0 even if a sampler run did not converge (default: exit {EXIT_UNCONVERGED})",
+    )
 
 
 def _check_inference_arguments(args: argparse.Namespace) -> None:
     if args.walkers < 4 or args.walkers % 2:
         raise UsageError(f"--walkers {args.walkers}: must be an even number >= 4")
+    if args.ensembles < 2:
+        raise UsageError(
+            f"--ensembles {args.ensembles}: must be >= 2 (convergence compares ensembles)"
+        )
     if args.max_steps < 100:
         raise UsageError(f"--max-steps {args.max_steps}: must be >= 100")
     if args.threads is not None and args.threads < 1:
@@ -678,7 +708,6 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--truth", type=Path, help="truth.toml of synthetic data, overlaid on figures"
     )
-    parser.add_argument("--progress", action="store_true", help="show progress bars")
 
 
 def _fit_config(args: argparse.Namespace):
@@ -688,11 +717,7 @@ def _fit_config(args: argparse.Namespace):
     _check_inference_arguments(args)
     terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
     sampler = SamplerSettings(
-        n_walkers=args.walkers,
-        max_steps=args.max_steps,
-        check_every=100,
-        n_draws=125,
-        progress=args.progress,
+        n_walkers=args.walkers, n_ensembles=args.ensembles, max_steps=args.max_steps
     )
     try:
         return FitConfig(
@@ -720,7 +745,7 @@ def run_fit(args: argparse.Namespace) -> int:
     table = load_jumps(args.data, experiment)
     priors = load_priors(args.priors) if args.priors else None
     truth = load_truth(args.truth) if args.truth else None
-    with staged_folder(args.out, args.resume) as work:
+    with staged_folder(args.out, args.resume) as work, ProgressBars(args.quiet) as bars:
         result = fit(
             experiment,
             table,
@@ -730,17 +755,72 @@ def run_fit(args: argparse.Namespace) -> int:
             backend=work / "chains",
             resume=args.resume,
             data_source=str(args.data),
+            progress=bars,
         )
         uniqueness = (
             compare_commands(experiment, table, result, seed=args.seed, priors=priors)
             if args.compare_commands
             else None
         )
-        write_fit_report(result, work, truth=truth, uniqueness=uniqueness)
+        write_fit_report(result.datatree, work, truth=truth, uniqueness=uniqueness)
     for w in result.warnings:
         print(f"granbayes: warning: {w}", file=sys.stderr)
-    print((args.out / "summary.md").read_text())
-    return EXIT_OK
+    if not args.quiet:
+        print((args.out / "summary.md").read_text())
+    return _converged_exit(result.converged, args)
+
+
+def _converged_exit(converged: bool, args: argparse.Namespace) -> int:
+    """EXIT_OK, or EXIT_UNCONVERGED for an unconverged run unless it is allowed."""
+    if converged or args.allow_unconverged:
+        return EXIT_OK
+    print(
+        "granbayes: error: a sampler run did not converge (see the warnings above); "
+        "results are written; raise --max-steps, or pass --allow-unconverged",
+        file=sys.stderr,
+    )
+    return EXIT_UNCONVERGED
+
+
+class ProgressBars:
+    """One labelled progress bar per sampler run (``fit(progress=...)``).
+
+    Each bar shows the run's label (volume fraction), steps against the cap, the largest
+    autocorrelation time, R-hat across ensembles, the smallest ESS and whether the run has
+    converged. Bars are drawn on stderr when it is a terminal and ``quiet`` is false.
+    """
+
+    def __init__(self, quiet: bool = False) -> None:
+        self.enabled = not quiet and sys.stderr.isatty()
+        self.bars: dict = {}
+
+    def __enter__(self) -> ProgressBars:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for bar in self.bars.values():
+            bar.close()
+
+    def __call__(self, label: str, info) -> None:
+        """Update the bar of run ``label`` with a ``granbayes.sampler.ProgressInfo``."""
+        if not self.enabled:
+            return
+        from tqdm import tqdm
+
+        bar = self.bars.get(label)
+        if bar is None:
+            bar = tqdm(total=info.max_steps, desc=label, unit="step", leave=True)
+            self.bars[label] = bar
+        bar.update(info.step - bar.n)
+        bar.set_postfix(
+            tau=f"{info.tau_max:.0f}",
+            rhat=f"{info.rhat_max:.3f}",
+            ess=f"{info.ess_min:.0f}",
+            converged=info.converged,
+        )
+        if info.converged:
+            bar.total = info.step
+            bar.refresh()
 
 
 # ----------------------------------------------------------------------------------------
@@ -756,7 +836,6 @@ def _add_diagnose_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--candidates", help="comma-separated terms to try (default: every other term)"
     )
-    parser.add_argument("--quiet", action="store_true", help="no progress messages")
 
 
 def run_diagnose(args: argparse.Namespace) -> int:
@@ -785,7 +864,12 @@ def run_diagnose(args: argparse.Namespace) -> int:
     )
     config = dc.replace(
         config,
-        sampler=dc.replace(config.sampler, n_walkers=args.walkers, max_steps=args.max_steps),
+        sampler=dc.replace(
+            config.sampler,
+            n_walkers=args.walkers,
+            n_ensembles=args.ensembles,
+            max_steps=args.max_steps,
+        ),
     )
     experiment = load_experiment(args.data)
     table = load_jumps(args.data, experiment)
@@ -801,9 +885,10 @@ def run_diagnose(args: argparse.Namespace) -> int:
             data_source=str(args.data),
             log=log,
         )
-        write_diagnosis_report(result, work)
-    print((args.out / "report.md").read_text())
-    return EXIT_OK
+        write_diagnosis_report(result.to_json(), result.selected.datatree, work)
+    if not args.quiet:
+        print((args.out / "report.md").read_text())
+    return _converged_exit(result.converged, args)
 
 
 # ----------------------------------------------------------------------------------------

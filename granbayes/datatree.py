@@ -17,9 +17,11 @@ import arviz as az
 import numpy as np
 import pandas as pd
 import xarray as xr
+from arviz_stats.base import array_stats
 
 __all__ = [
     "build_datatree",
+    "run_diagnostics",
     "summary_table",
     "loo",
     "elpd_difference",
@@ -45,6 +47,10 @@ def build_datatree(
     sample_stats: Mapping[str, np.ndarray],
     attrs: Mapping[str, object],
     stats_dims: Mapping[str, Sequence[str]] | None = None,
+    prior: Mapping[str, np.ndarray] | None = None,
+    prior_predictive: Mapping[str, np.ndarray] | None = None,
+    log_prior: Mapping[str, np.ndarray] | None = None,
+    var_attrs: Mapping[str, Mapping[str, str]] | None = None,
 ) -> xr.DataTree:
     """Assemble a DataTree from arrays with leading (chain, draw) axes.
 
@@ -70,6 +76,14 @@ def build_datatree(
         stored as JSON strings.
     stats_dims : mapping of str to sequence of str, optional
         Extra dimensions of the ``sample_stats`` variables.
+    prior : mapping of str to ndarray, optional
+        Prior draws of the posterior's variables, shape ``(chain, draw, *dims[name])``.
+    prior_predictive : mapping of str to ndarray, optional
+        Heights simulated from the prior draws, shape ``(chain, draw, jump)``.
+    log_prior : mapping of str to ndarray, optional
+        Log prior density of every posterior draw, shape ``(chain, draw)``.
+    var_attrs : mapping of str to mapping, optional
+        Attributes (``units``, ``long_name``) of the variables of that name, in every group.
 
     Returns
     -------
@@ -89,6 +103,12 @@ def build_datatree(
     if sample_stats:
         groups["sample_stats"] = dict(sample_stats)
         all_dims.update({k: list(v) for k, v in (stats_dims or {}).items()})
+    if prior:
+        groups["prior"] = dict(prior)
+    if prior_predictive:
+        groups["prior_predictive"] = dict(prior_predictive)
+    if log_prior:
+        groups["log_prior"] = dict(log_prior)
     used = {d for v in all_dims.values() for d in v}
     all_coords = {k: np.asarray(v) for k, v in coords.items() if k in used}
     all_coords["jump"] = np.arange(n_jump)
@@ -100,13 +120,58 @@ def build_datatree(
         for c in observed.columns
         if c != "height_mm" and observed[c].notna().all()
     }
-    for group in ("log_likelihood", "posterior_predictive", "observed_data"):
+    for group in ("log_likelihood", "posterior_predictive", "prior_predictive", "observed_data"):
         if group in dt.children:
             dt[group] = dt[group].to_dataset().assign_coords(extra)
+    for group in dt.children:
+        ds = dt[group].to_dataset()
+        for name, var_attr in (var_attrs or {}).items():
+            if name in ds:
+                ds[name].attrs.update(var_attr)
+        dt[group] = ds
     dt.attrs.update(
         {k: (v if isinstance(v, str | int | float) else json.dumps(v)) for k, v in attrs.items()}
     )
     return dt
+
+
+def run_diagnostics(dt: xr.DataTree) -> pd.DataFrame:
+    """Per sampler run of a fit: ensembles, steps, largest tau, R-hat, ESS, convergence.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit's DataTree (reads only its ``runs`` attribute).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per run; ``tau_max`` [steps] over ensembles and coordinates,
+        ``steps_over_tau`` the shortest post-burn-in chain in autocorrelation times,
+        ``rhat_max`` across ensembles, ``ess_min`` the smallest bulk or tail ESS.
+    """
+    rows = []
+    for run in json.loads(dt.attrs["runs"]):
+        tau = np.asarray(run["tau"], dtype=float)
+        burn = np.asarray(run["burn"], dtype=float)
+        tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else np.nan
+        per_ens = np.nanmax(tau, axis=1) if tau.ndim == 2 else np.array([tau_max])
+        rows.append(
+            {
+                "run": run["label"],
+                "n_ensembles": run["n_ensembles"],
+                "n_chains": run["n_chains"],
+                "n_steps": run["n_steps"],
+                "tau_max": tau_max,
+                "steps_over_tau": float(np.nanmin((run["n_steps"] - burn) / per_ens)),
+                "rhat_max": float(np.nanmax(run["rhat"])) if run["rhat"] else np.nan,
+                "ess_min": float(np.nanmin([*run["ess_bulk"], *run["ess_tail"]])),
+                "acceptance": run["acceptance"],
+                "converged": run["converged"],
+                "warnings": "; ".join(run["warnings"]),
+            }
+        )
+    return pd.DataFrame(rows)
 
 
 def summary_table(
@@ -130,8 +195,15 @@ def summary_table(
     return az.summary(dt, var_names=var_names, ci_prob=ci_prob, ci_kind="eti")
 
 
-def loo(dt: xr.DataTree) -> dict[str, object]:
+def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
     """PSIS-LOO of the ``height_mm`` log-likelihood.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree or ndarray
+        A fit's DataTree, or a pointwise log-likelihood array of shape
+        ``(chain, draw, jump)`` (PSIS with relative efficiency 1: the kept draws are
+        thinned to roughly independent ones).
 
     Returns
     -------
@@ -139,6 +211,18 @@ def loo(dt: xr.DataTree) -> dict[str, object]:
         ``elpd``, ``se``, ``p`` (effective number of parameters), ``elpd_i`` and
         ``pareto_k`` (ndarrays over jumps), ``max_pareto_k``, ``n_bad_k`` (k > 0.7).
     """
+    if isinstance(dt, np.ndarray):
+        elpd_i, k, p_i = array_stats.loo(np.moveaxis(dt, -1, 0), chain_axis=-2, draw_axis=-1)
+        elpd_i, k = np.asarray(elpd_i, dtype=float), np.asarray(k, dtype=float)
+        return {
+            "elpd": float(np.sum(elpd_i)),
+            "se": float(np.sqrt(elpd_i.size * np.var(elpd_i))),
+            "p": float(np.sum(p_i)),
+            "elpd_i": elpd_i,
+            "pareto_k": k,
+            "max_pareto_k": float(np.nanmax(k)),
+            "n_bad_k": int(np.sum(k > 0.7)),
+        }
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = az.loo(dt, pointwise=True, var_name="height_mm")

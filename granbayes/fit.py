@@ -19,22 +19,24 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import importlib.metadata
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import xarray as xr
-from scipy.optimize import minimize
 
 from . import datatree as gdt
 from .experiment import COMMAND_NAMES, Experiment
-from .forces import terms_of
+from .forces import PARAMETERS, terms_of
 from .likelihood import JumpModel, Observations
 from .priors import Prior, default_priors
-from .sampler import SamplerRun, SamplerSettings, run_ensemble
+from .sampler import ProgressInfo, SamplerRun, SamplerSettings, run_ensembles
 from .simulator import SolverOptions
+
+#: The "off" value of every force parameter (its term absent).
+PARAMETER_ABSENT: dict[str, float | None] = {p.name: p.absent for p in PARAMETERS}
 
 __all__ = [
     "FitConfig",
@@ -42,13 +44,13 @@ __all__ = [
     "FitResult",
     "compare_commands",
     "data_hash",
-    "find_start",
+    "find_starts",
     "fit",
 ]
 
 
 def _default_sampler() -> SamplerSettings:
-    return SamplerSettings(n_walkers=16, check_every=100, n_draws=125)
+    return SamplerSettings()
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,9 @@ class FitConfig:
         Integrator settings.
     n_threads : int, optional
         numba threads for the simulator.
+    n_prior_draws : int
+        Prior draws (and their simulated heights) stored in the DataTree's ``prior`` and
+        ``prior_predictive`` groups (0: none).
     """
 
     terms: tuple[str, ...] = ("depth",)
@@ -86,6 +91,7 @@ class FitConfig:
     fixed: Mapping[str, float] = field(default_factory=dict)
     options: SolverOptions = field(default_factory=SolverOptions)
     n_threads: int | None = None
+    n_prior_draws: int = 200
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "terms", terms_of(self.terms))
@@ -133,35 +139,33 @@ class FitResult:
     seed: int
     warnings: list[str]
 
+    @property
+    def converged(self) -> bool:
+        """Whether every run met the stopping rule (``granbayes.sampler``)."""
+        return all(p.run.converged for p in self.parts)
+
     def diagnostics(self) -> pd.DataFrame:
-        """Per run: autocorrelation times, chain length, acceptance, convergence."""
-        rows = []
-        for part in self.parts:
-            r = part.run
-            rows.append(
-                {
-                    "run": part.label,
-                    "n_walkers": r.samples.shape[0],
-                    "n_steps": r.n_steps,
-                    "tau_max": float(np.max(r.tau)),
-                    "steps_over_tau": float((r.n_steps - r.burn) / np.max(r.tau)),
-                    "burn": r.burn,
-                    "first_kept": r.first,
-                    "thin": r.thin,
-                    "acceptance": float(np.mean(r.acceptance)),
-                    "converged": r.converged,
-                    **{
-                        f"tau[{n}]": float(t)
-                        for n, t in zip(part.model.coordinate_names, r.tau, strict=True)
-                    },
-                }
-            )
-        return pd.DataFrame(rows)
+        """Per run: autocorrelation times, R-hat, ESS, chain length, convergence."""
+        return gdt.run_diagnostics(self.datatree)
 
 
 # ----------------------------------------------------------------------------------------
-def find_start(model: JumpModel, rng: np.random.Generator, n_walkers: int) -> np.ndarray:
-    """Starting positions: best of a prior sample, polished by Nelder-Mead, plus a ball.
+def find_starts(
+    model: JumpModel,
+    rng: np.random.Generator,
+    n_ensembles: int,
+    n_walkers: int,
+    warm: np.ndarray | None = None,
+) -> list[np.ndarray]:
+    """Dispersed, optimised starting positions: one array per independent ensemble.
+
+    A batch of prior draws is split into ``n_ensembles`` disjoint groups; each ensemble
+    starts from the best draw of its own group, so the ensembles begin in different parts
+    of the prior. Each start is then improved by a batched local search (every round
+    evaluates 24 Gaussian proposals per ensemble in one simulator call and shrinks the
+    proposal scale when nothing improves), and the walkers are placed in a ball of the
+    final proposal scale around it. With ``warm`` (draws of a nested parent's posterior,
+    the new coordinates at their "off" values), ensemble 0 starts from those draws.
 
     Parameters
     ----------
@@ -169,35 +173,56 @@ def find_start(model: JumpModel, rng: np.random.Generator, n_walkers: int) -> np
         The log-posterior.
     rng : numpy.random.Generator
         Source of randomness.
-    n_walkers : int
-        Ensemble size.
+    n_ensembles, n_walkers : int
+        Number of ensembles and walkers per ensemble.
+    warm : ndarray, shape (n, ndim), optional
+        Warm-start positions for ensemble 0.
 
     Returns
     -------
-    ndarray, shape (n_walkers, ndim)
+    list of ndarray, each of shape (n_walkers, ndim)
     """
     ndim = model.ndim
-    draws = model.sample_prior(rng, min(64 * ndim, 512))
-    lp, _ = model(draws)
-    best = draws[int(np.argmax(lp))]
-
-    def neg(u: np.ndarray) -> float:
-        value = model(u[None, :])[0][0]
-        return -value if np.isfinite(value) else 1e300
-
-    res = minimize(
-        neg,
-        best,
-        method="Nelder-Mead",
-        options={"maxfev": 150 * ndim, "xatol": 1e-5, "fatol": 1e-4},
-    )
-    x0 = res.x if res.fun < -lp.max() + 1e-9 else best
-    widths = np.diff(model.bounds_u, axis=1)[:, 0]
-    out = np.empty((0, ndim))
-    while len(out) < n_walkers:
-        ball = x0 + 1e-3 * widths * rng.standard_normal((n_walkers, ndim))
-        out = np.concatenate([out, ball[np.isfinite(model.log_prior(ball))]])
-    return out[:n_walkers]
+    lo, hi = model.bounds_u.T
+    width = hi - lo
+    n_prior = max(32, 16 * ndim) * n_ensembles
+    draws = model.sample_prior(rng, n_prior)
+    lp = model(draws)[0]
+    best_x, best_lp = [], []
+    for e in range(n_ensembles):
+        group = np.arange(e, n_prior, n_ensembles)
+        i = group[int(np.argmax(lp[group]))]
+        best_x.append(draws[i].copy())
+        best_lp.append(lp[i])
+    if warm is not None:
+        warm_lp = model(warm)[0]
+        best_x[0], best_lp[0] = warm[int(np.argmax(warm_lp))].copy(), float(np.max(warm_lp))
+    x, f = np.array(best_x), np.array(best_lp)
+    scale = np.tile(0.05 * width, (n_ensembles, 1))
+    n_prop = 24
+    for _ in range(12):
+        prop = x[:, None, :] + scale[:, None, :] * rng.standard_normal((n_ensembles, n_prop, ndim))
+        prop = np.clip(prop, lo, hi)
+        f_prop = model(prop.reshape(-1, ndim))[0].reshape(n_ensembles, n_prop)
+        j = np.argmax(f_prop, axis=1)
+        better = f_prop[np.arange(n_ensembles), j] > f
+        x[better] = prop[better, j[better]]
+        f[better] = f_prop[better, j[better]]
+        scale[~better] *= 0.5
+    out = []
+    for e in range(n_ensembles):
+        if e == 0 and warm is not None:
+            pick = rng.choice(len(warm), size=n_walkers, replace=len(warm) < n_walkers)
+            ball = warm[pick] + 1e-3 * width * np.abs(rng.standard_normal((n_walkers, ndim)))
+            out.append(np.clip(ball, lo, hi))
+            continue
+        sd = np.maximum(scale[e], 1e-3 * width)
+        pos = np.empty((0, ndim))
+        while len(pos) < n_walkers:
+            ball = x[e] + sd * rng.standard_normal((2 * n_walkers, ndim))
+            pos = np.concatenate([pos, ball[np.isfinite(model.log_prior(ball))]])
+        out.append(pos[:n_walkers])
+    return out
 
 
 def _seeds(seed: int, n: int) -> list[int]:
@@ -212,17 +237,21 @@ def _run_part(
     seed: int,
     backend: Path | None,
     resume: bool,
+    warm: np.ndarray | None = None,
+    progress: Callable[[str, ProgressInfo], None] | None = None,
 ) -> FitPart:
     rng = np.random.default_rng(seed)
     s = config.sampler
+    n_walkers = s.walkers_for(model.ndim)
     checkpoint = None if backend is None else Path(backend) / f"{label}.h5"
     resuming = resume and checkpoint is not None and checkpoint.exists()
-    initial = (
-        np.zeros((s.n_walkers, model.ndim)) if resuming else find_start(model, rng, s.n_walkers)
-    )
+    if resuming:
+        initial = [np.zeros((n_walkers, model.ndim))] * s.n_ensembles
+    else:
+        initial = find_starts(model, rng, s.n_ensembles, n_walkers, warm)
     if checkpoint is not None:
         checkpoint.parent.mkdir(parents=True, exist_ok=True)
-    run = run_ensemble(
+    run = run_ensembles(
         model,
         initial,
         model.obs.n_obs,
@@ -231,6 +260,7 @@ def _run_part(
         checkpoint=checkpoint,
         resume=resume,
         fingerprint=_fingerprint(model, config, seed),
+        progress=None if progress is None else (lambda info: progress(label, info)),
     )
     return FitPart(label, model, run, jumps)
 
@@ -278,6 +308,8 @@ def fit(
     backend: str | Path | None = None,
     resume: bool = False,
     data_source: str = "",
+    warm_start: xr.DataTree | None = None,
+    progress: Callable[[str, ProgressInfo], None] | None = None,
 ) -> FitResult:
     """Fit a force law to measured jump heights.
 
@@ -299,6 +331,12 @@ def fit(
         Continue the runs stored in ``backend``.
     data_source : str
         Where the data came from (recorded).
+    warm_start : xarray.DataTree, optional
+        The posterior of a nested law (``per_phi`` mode): one ensemble per volume fraction
+        starts from its draws, parameters it lacks at their "off" values, so an extension
+        cannot get lost below its parent.
+    progress : callable, optional
+        ``progress(label, info)`` after every sampler chunk of every run.
 
     Returns
     -------
@@ -315,6 +353,7 @@ def fit(
             sub = table[table["phi"] == phi]
             obs = Observations.from_table(sub)
             model = _make_model(obs, experiment, config, priors, "shared")
+            warm = None if warm_start is None else _warm_positions(model, warm_start, phi)
             parts.append(
                 _run_part(
                     f"phi={phi:g}",
@@ -324,6 +363,8 @@ def fit(
                     part_seed,
                     backend,
                     resume,
+                    warm,
+                    progress,
                 )
             )
     else:
@@ -331,28 +372,56 @@ def fit(
         model = _make_model(obs, experiment, config, priors, "quadratic")
         parts.append(
             _run_part(
-                "all", model, table["jump"].to_numpy(), config, _seeds(seed, 1)[0], backend, resume
+                "all",
+                model,
+                table["jump"].to_numpy(),
+                config,
+                _seeds(seed, 1)[0],
+                backend,
+                resume,
+                progress=progress,
             )
         )
     return _assemble(parts, experiment, table, config, priors, seed, data_source)
 
 
+def _warm_positions(model: JumpModel, parent: xr.DataTree, phi: float) -> np.ndarray | None:
+    """A nested parent's posterior draws at ``phi`` in the model's sampling coordinates.
+
+    Parameters the parent does not have take their "off" value (``fixed`` or the term's
+    ``absent``), pushed inside the prior's support; ``None`` if the parent has no draws at
+    ``phi`` or lacks a parameter that has no "off" value.
+    """
+    post = parent["posterior"]
+    if "phi" not in post.coords or not np.any(np.isclose(post["phi"].values, phi)):
+        return None
+    at = post.sel(phi=phi, method="nearest")
+    n = at.sizes["chain"] * at.sizes["draw"]
+    columns = []
+    for name, coord in zip(model.coordinate_names, model.coordinate_priors, strict=True):
+        pname = "sigma_mm" if name.startswith("sigma_mm") else name
+        if pname in at:
+            values = at[pname].values.reshape(-1)
+        else:
+            off = model.fixed.get(pname, PARAMETER_ABSENT.get(pname))
+            if off is None:
+                return None
+            values = np.full(n, float(off))
+        lo, hi = coord.bounds_u
+        with np.errstate(divide="ignore"):
+            u = coord.to_u(values)
+        columns.append(np.clip(np.nan_to_num(u, nan=lo, neginf=lo, posinf=hi), lo, hi))
+    out = np.column_stack(columns)
+    return out[np.isfinite(model.log_prior(out))] if len(out) else None
+
+
 # ----------------------------------------------------------------------------------------
 def _replicate(part: FitPart, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Simulated mean heights and noisy replicates for the kept draws: (chain, draw, obs)."""
-    model, run = part.model, part.run
-    c, d, ndim = run.samples.shape
-    flat = run.samples.reshape(-1, ndim)
-    heights, _ = model.predict(flat)
-    mean = heights[:, model.obs.config_of_obs]
-    phi_idx = np.searchsorted(model.phis, model.obs.table["phi"].to_numpy(float))
-    sigma = model.parameter_values(flat)["sigma_mm"][:, phi_idx]
-    rng = np.random.default_rng(seed)
-    if model.noise == "normal":
-        eps = rng.standard_normal(mean.shape)
-    else:
-        eps = rng.standard_t(model.nu, mean.shape)
-    rep = mean + sigma * eps
+    c, d, ndim = part.run.samples.shape
+    mean, rep = part.model.sample_predictive(
+        part.run.samples.reshape(-1, ndim), np.random.default_rng(seed)
+    )
     return mean.reshape(c, d, -1), rep.reshape(c, d, -1)
 
 
@@ -374,6 +443,91 @@ def data_hash(experiment: Experiment, table: pd.DataFrame) -> str:
     return h.hexdigest()
 
 
+def _to_shape(a: np.ndarray, n_chain: int, n_draw: int) -> np.ndarray:
+    """Draws of shape (chain, draw, ...) as ``(n_chain, n_draw, ...)``.
+
+    A run that kept all its chains keeps its last ``n_draw`` draws per chain; one that kept
+    fewer (ensembles of a worse-supported mode dropped) is flattened in draw order and cut
+    into ``n_chain`` chains of ``n_draw`` draws.
+    """
+    if a.shape[0] == n_chain:
+        return a[:, a.shape[1] - n_draw :]
+    flat = np.swapaxes(a, 0, 1).reshape(-1, *a.shape[2:])[-n_chain * n_draw :]
+    return np.swapaxes(flat.reshape(n_draw, n_chain, *a.shape[2:]), 0, 1)
+
+
+def _common_shape(parts: list[FitPart]) -> tuple[int, int]:
+    """(chains, draws) that every run's kept draws can fill."""
+    n_chain = max(p.run.samples.shape[0] for p in parts)
+    n_draw = min(
+        p.run.samples.shape[1]
+        if p.run.samples.shape[0] == n_chain
+        else (p.run.samples.shape[0] * p.run.samples.shape[1]) // n_chain
+        for p in parts
+    )
+    return n_chain, n_draw
+
+
+def _variable_attrs(names: tuple[str, ...]) -> dict[str, dict[str, str]]:
+    """Units and descriptions of the posterior variables (from the force registry)."""
+    by_name = {p.name: p for p in PARAMETERS}
+    out = {n: {"units": by_name[n].unit, "long_name": by_name[n].description} for n in names}
+    out["sigma_mm"] = {"units": "mm", "long_name": "trial-to-trial scatter of jump heights"}
+    out["height_mm"] = {"units": "mm", "long_name": "jump height"}
+    out["height_sim_mm"] = {"units": "mm", "long_name": "simulated jump height (no noise)"}
+    return out
+
+
+def _run_record(part: FitPart) -> dict:
+    """Diagnostics of one run, for the DataTree attributes (and the reports)."""
+    r = part.run
+    return {
+        "label": part.label,
+        "coordinates": part.model.coordinate_names,
+        "n_ensembles": len(r.tau),
+        "n_chains": int(r.samples.shape[0]),
+        "tau": r.tau.tolist(),
+        "rhat": r.rhat.tolist(),
+        "ess_bulk": r.ess_bulk.tolist(),
+        "ess_tail": r.ess_tail.tolist(),
+        "n_steps": r.n_steps,
+        "burn": r.burn.tolist(),
+        "thin": r.thin,
+        "acceptance": float(np.mean(r.acceptance)),
+        "converged": r.converged,
+        "warnings": list(r.warnings),
+    }
+
+
+def _warnings(parts: list[FitPart], config: FitConfig) -> list[str]:
+    out = []
+    for p in parts:
+        out.extend(f"run {p.label}: {w}" for w in p.run.warnings)
+        if not p.run.converged and not p.run.warnings:
+            out.append(f"run {p.label}: not converged after {p.run.n_steps} steps")
+    return out
+
+
+def _prior_draws(
+    parts: list[FitPart], phis: np.ndarray, n_jump: int, config: FitConfig, seed: int
+) -> tuple[dict, dict]:
+    """Prior draws per volume fraction [SI] and the heights simulated from them [mm]."""
+    n = config.n_prior_draws
+    names = (*parts[0].model.parameters, "sigma_mm")
+    prior = {name: np.full((1, n, len(phis)), np.nan) for name in names}
+    prior_pred = np.full((1, n, n_jump), np.nan)
+    for part, part_seed in zip(parts, _seeds(seed + 2, len(parts)), strict=True):
+        rng = np.random.default_rng(part_seed)
+        u = part.model.sample_prior(rng, n)
+        values = part.model.parameter_values(u, phis)
+        cols = np.searchsorted(phis, part.model.phis)
+        for name in names:
+            prior[name][0][:, cols] = values[name][:, cols]
+        _, rep = part.model.sample_predictive(u, rng)
+        prior_pred[0][:, part.jumps] = rep
+    return prior, {"height_mm": prior_pred}
+
+
 def _assemble(
     parts: list[FitPart],
     experiment: Experiment,
@@ -383,8 +537,7 @@ def _assemble(
     seed: int,
     data_source: str,
 ) -> FitResult:
-    n_chain = parts[0].run.samples.shape[0]
-    n_draw = min(p.run.samples.shape[1] for p in parts)
+    n_chain, n_draw = _common_shape(parts)
     n_jump = len(table)
     phis = np.unique(table["phi"].to_numpy(float))
     names = parts[0].model.parameters
@@ -396,22 +549,21 @@ def _assemble(
     sim = np.full_like(loglik, np.nan)
     rep = np.full_like(loglik, np.nan)
     lp = np.full((n_chain, n_draw, len(parts)), np.nan)
-    rep_seeds = _seeds(seed + 1, len(parts))
-    for i, part in enumerate(parts):
+    log_prior = np.zeros((n_chain, n_draw))
+    for i, (part, rep_seed) in enumerate(zip(parts, _seeds(seed + 1, len(parts)), strict=True)):
         r = part.run
-        samples = r.samples[:, -n_draw:]
+        samples = _to_shape(r.samples, n_chain, n_draw)
         flat = samples.reshape(-1, samples.shape[-1])
         values = part.model.parameter_values(flat, phis)
         cols = np.searchsorted(phis, part.model.phis)
         for n in post:
             v = values[n].reshape(n_chain, n_draw, len(phis))
             post[n][..., cols] = v[..., cols]
-        loglik[..., part.jumps] = r.blobs[:, -n_draw:]
+        loglik[..., part.jumps] = _to_shape(r.blobs, n_chain, n_draw)
         trimmed = dataclasses.replace(part, run=dataclasses.replace(r, samples=samples))
-        m, y = _replicate(trimmed, rep_seeds[i])
-        sim[..., part.jumps] = m
-        rep[..., part.jumps] = y
-        lp[..., i] = r.log_prob[:, -n_draw:]
+        sim[..., part.jumps], rep[..., part.jumps] = _replicate(trimmed, rep_seed)
+        lp[..., i] = _to_shape(r.log_prob, n_chain, n_draw)
+        log_prior += part.model.log_prior_density(flat).reshape(n_chain, n_draw)
         if config.phi_mode == "quadratic":
             for j, cname in enumerate(part.model.coordinate_names):
                 if ":c" in cname:
@@ -423,14 +575,9 @@ def _assemble(
                     dims[key] = ["order"]
     coords = {"phi": phis, "order": np.arange(3), "run": [p.label for p in parts]}
     observed = table.drop(columns=["jump"])
-    warnings_ = [
-        f"run {p.label}: not converged after {p.run.n_steps} steps "
-        f"(needs {config.sampler.tau_factor:g} x tau = "
-        f"{config.sampler.tau_factor * np.max(p.run.tau):.0f} steps after burn-in); "
-        "raise --max-steps"
-        for p in parts
-        if not p.run.converged
-    ]
+    prior, prior_pred = {}, {}
+    if config.n_prior_draws > 0:
+        prior, prior_pred = _prior_draws(parts, phis, n_jump, config, seed)
     attrs = {
         "seed": int(seed),
         "versions": _versions(),
@@ -443,21 +590,12 @@ def _assemble(
             "command": dataclasses.asdict(experiment.command),
             "phi_c": experiment.phi_c,
         },
-        "runs": [
-            {
-                "label": p.label,
-                "coordinates": p.model.coordinate_names,
-                "tau": p.run.tau.tolist(),
-                "n_steps": p.run.n_steps,
-                "burn": p.run.burn,
-                "first_kept": p.run.first,
-                "thin": p.run.thin,
-                "acceptance": float(np.mean(p.run.acceptance)),
-                "converged": p.run.converged,
-            }
-            for p in parts
-        ],
+        "parameters": list(names),
+        "runs": [_run_record(p) for p in parts],
+        "converged": all(p.run.converged for p in parts),
+        "warnings": _warnings(parts, config),
         "interval": f"{gdt.CI_PROB:.0%} equal-tailed",
+        "log_prior": "density of the reported parameter values, summed over runs",
     }
     dt = gdt.build_datatree(
         post,
@@ -469,8 +607,12 @@ def _assemble(
         sample_stats={"lp": lp},
         attrs=attrs,
         stats_dims={"lp": ["run"]},
+        prior=prior,
+        prior_predictive=prior_pred,
+        log_prior={"log_prior": log_prior},
+        var_attrs=_variable_attrs(names),
     )
-    return FitResult(dt, parts, config, seed, warnings_)
+    return FitResult(dt, parts, config, seed, _warnings(parts, config))
 
 
 # ----------------------------------------------------------------------------------------
@@ -542,24 +684,14 @@ def compare_commands(
                     ),
                 )
             )
-        n_draw = min(p.run.samples.shape[1] for _, p in [*sub_parts, ("", part)])
+        n_chain, n_draw = _common_shape([part, *(p for _, p in sub_parts)])
         order = np.concatenate([p.jumps for _, p in sub_parts])
-        ll_sep = np.concatenate([p.run.blobs[:, -n_draw:] for _, p in sub_parts], axis=-1)
+        ll_sep = np.concatenate(
+            [_to_shape(p.run.blobs, n_chain, n_draw) for _, p in sub_parts], axis=-1
+        )
         pos = {j: i for i, j in enumerate(part.jumps)}
-        ll_shared = part.run.blobs[:, -n_draw:][..., [pos[j] for j in order]]
-        obs_table = table.set_index("jump").loc[order].reset_index(drop=True)
-        models = {}
-        for name, ll in (("shared", ll_shared), ("per_command", ll_sep)):
-            models[name] = gdt.build_datatree(
-                {"dummy": np.zeros(ll.shape[:2])},
-                dims={},
-                coords={},
-                log_likelihood=ll,
-                posterior_predictive={},
-                observed=obs_table[["height_mm"]],
-                sample_stats={},
-                attrs={},
-            )
+        ll_shared = _to_shape(part.run.blobs, n_chain, n_draw)[..., [pos[j] for j in order]]
+        models = {"shared": ll_shared, "per_command": ll_sep}
         loo = {k: gdt.loo(v) for k, v in models.items()}
         diff, diff_se = gdt.elpd_difference(loo["shared"]["elpd_i"], loo["per_command"]["elpd_i"])
         row = {

@@ -219,6 +219,11 @@ class JumpModel:
         return [c.name for c in self._coords]
 
     @property
+    def coordinate_priors(self) -> list[Prior]:
+        """Prior of every sampled coordinate, in column order."""
+        return [c.prior for c in self._coords]
+
+    @property
     def bounds_u(self) -> np.ndarray:
         """Prior bounds of every sampled coordinate, shape (ndim, 2), in sampling units."""
         return np.array([c.prior.bounds_u for c in self._coords])
@@ -245,6 +250,23 @@ class JumpModel:
                 lo, hi = self.priors[name].bounds_u
                 v = values[name]
                 lp[np.any((v < lo) | (v > hi), axis=1)] = -np.inf
+        return lp
+
+    def log_prior_density(self, u: np.ndarray) -> np.ndarray:
+        """Log prior density [nats] of walker positions in the parameters' own units.
+
+        :meth:`log_prior` is the density of the sampling coordinates (flat for log-uniform
+        priors); this is the density of the physical values the posterior reports (for a
+        log-scale coordinate ``u = log(value)``: ``log p_u(u) - u``), the one ArviZ's
+        prior-sensitivity analysis power-scales. In quadratic mode the coordinates are
+        polynomial coefficients and the two coincide.
+        """
+        u = np.atleast_2d(u)
+        lp = self.log_prior(u)
+        if self.phi_mode == "shared":
+            for j, c in enumerate(self._coords):
+                if c.prior.log_scale:
+                    lp = lp - u[:, j]
         return lp
 
     def _parameter_u(self, u: np.ndarray, x: np.ndarray) -> dict[str, np.ndarray]:
@@ -339,6 +361,51 @@ class JumpModel:
         ok = np.all(res.ok.reshape(n, m), axis=1)
         return heights, ok
 
+    # ------------------------------------------------------------------------------------
+    # the observation model: the only place where the noise family is written down
+    def mean_and_sigma(
+        self, u: np.ndarray, observations: Observations | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Predictive mean and scatter [mm] of every jump, for every walker position.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Walker positions.
+        observations : Observations, optional
+            Jumps to predict (default: the model's data); their volume fractions must be
+            ones the model has a scatter for.
+
+        Returns
+        -------
+        mean_mm, sigma_mm : ndarray, shape (n, n_obs)
+            Simulated height and noise scale of every jump.
+        ok : ndarray of bool, shape (n,)
+            Whether every simulation of the walker succeeded.
+        """
+        u = np.atleast_2d(u)
+        obs = observations or self.obs
+        heights, ok = self.predict(u, obs)
+        return heights[:, obs.config_of_obs], self._sigma_of(u, obs), ok
+
+    def _sigma_of(self, u: np.ndarray, obs: Observations) -> np.ndarray:
+        """Noise scale [mm] of every jump of ``obs``: shape (n, n_obs)."""
+        phis = obs.table["phi"].to_numpy(float)
+        index = np.searchsorted(self._phis, phis).clip(0, len(self._phis) - 1)
+        if not np.allclose(self._phis[index], phis, atol=1e-12):
+            missing = sorted(set(phis) - set(self._phis))
+            raise ValueError(f"no fitted scatter at phi = {missing}")
+        return self._sigma_at(u, self._phis)[:, index]
+
+    def log_density(self, y_mm: np.ndarray, mean_mm: np.ndarray, sigma_mm: np.ndarray):
+        """Log density of heights ``y_mm`` given predictive mean and scatter [mm]."""
+        r = (y_mm - mean_mm) / sigma_mm
+        if self.noise == "normal":
+            return -0.5 * r * r - np.log(sigma_mm) - 0.5 * math.log(2.0 * math.pi)
+        nu = self.nu
+        const = gammaln(0.5 * (nu + 1)) - gammaln(0.5 * nu) - 0.5 * math.log(nu * math.pi)
+        return const - np.log(sigma_mm) - 0.5 * (nu + 1) * np.log1p(r * r / nu)
+
     def log_likelihood(self, u: np.ndarray, heights_mm: np.ndarray) -> np.ndarray:
         """Pointwise log-likelihood of the data given simulated config heights.
 
@@ -354,13 +421,55 @@ class JumpModel:
         ndarray, shape (n, n_obs)
         """
         mean = heights_mm[:, self.obs.config_of_obs]
-        sigma = self._sigma_at(np.atleast_2d(u), self._phis)[:, self._phi_index_of_obs]
-        r = (self._y[None, :] - mean) / sigma
+        sigma = self._sigma_of(np.atleast_2d(u), self.obs)
+        return self.log_density(self._y[None, :], mean, sigma)
+
+    def log_predictive_density(self, u: np.ndarray, observations: Observations) -> np.ndarray:
+        """log p(y_i | draws) of (held-out) jumps, averaged over the draws ``u``.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Posterior draws.
+        observations : Observations
+            The jumps to score.
+
+        Returns
+        -------
+        ndarray, shape (n_obs,)
+            ``log mean_s p(y_i | u_s)`` [nats]; a failed simulation counts as zero density.
+        """
+        mean, sigma, ok = self.mean_and_sigma(u, observations)
+        ll = self.log_density(observations.height_mm[None, :], mean, sigma)
+        ll[~ok] = -np.inf
+        return np.logaddexp.reduce(ll, axis=0) - math.log(len(ll))
+
+    def sample_predictive(
+        self, u: np.ndarray, rng: np.random.Generator, observations: Observations | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Simulated heights and replicated measurements [mm] for every draw.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Posterior draws.
+        rng : numpy.random.Generator
+            Source of the replicate noise.
+        observations : Observations, optional
+            Jumps to replicate (default: the model's data).
+
+        Returns
+        -------
+        mean_mm, replicate_mm : ndarray, shape (n, n_obs)
+            The simulated height, and it plus one draw of the noise (NaN where a
+            simulation failed).
+        """
+        mean, sigma, _ = self.mean_and_sigma(u, observations)
         if self.noise == "normal":
-            return -0.5 * r * r - np.log(sigma) - 0.5 * math.log(2.0 * math.pi)
-        nu = self.nu
-        const = gammaln(0.5 * (nu + 1)) - gammaln(0.5 * nu) - 0.5 * math.log(nu * math.pi)
-        return const - np.log(sigma) - 0.5 * (nu + 1) * np.log1p(r * r / nu)
+            eps = rng.standard_normal(mean.shape)
+        else:
+            eps = rng.standard_t(self.nu, mean.shape)
+        return mean, mean + sigma * eps
 
     def __call__(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Log-posterior and pointwise log-likelihood of walker positions.

@@ -279,7 +279,7 @@ def markdown_table(df: pd.DataFrame, floatfmt: str = ".4g", missing: str | None 
 
 
 def write_fit_report(
-    result,
+    dt: xr.DataTree,
     out: Path,
     *,
     truth: Mapping[float, Mapping[str, float]] | None = None,
@@ -290,8 +290,9 @@ def write_fit_report(
 
     Parameters
     ----------
-    result : granbayes.fit.FitResult
-        The fit.
+    dt : xarray.DataTree
+        A fit's DataTree (``FitResult.datatree``, or ``posterior.nc`` read back): the
+        report reads nothing else, so any saved fit can be re-rendered.
     out : Path
         Existing folder.
     truth : mapping, optional
@@ -307,16 +308,18 @@ def write_fit_report(
         Files written.
     """
     out = Path(out)
-    dt = result.datatree
     written: list[Path] = []
     gdt.write_datatree(dt, out / "posterior.nc")
     written.append(out / "posterior.nc")
-    names = [*result.parts[0].model.parameters, "sigma_mm"]
+    config = json.loads(dt.attrs["config"])
+    force_names = list(json.loads(dt.attrs["parameters"]))
+    names = [*force_names, "sigma_mm"]
+    fit_warnings = json.loads(dt.attrs.get("warnings", "[]"))
     summary = gdt.summary_table(dt, var_names=names).reset_index(names="parameter")
     if truth:
         summary["truth"] = [_truth_of(truth, label) for label in summary["parameter"]]
     summary.to_csv(out / "summary.csv", index=False)
-    diag = result.diagnostics()
+    diag = gdt.run_diagnostics(dt)
     diag.to_csv(out / "diagnostics.csv", index=False)
     loo = gdt.loo(dt)
     phi_c = json.loads(dt.attrs["experiment"])["phi_c"]
@@ -325,25 +328,28 @@ def write_fit_report(
         "",
         *([f"**{data_label(dt)}**", ""] if data_label(dt) else []),
         f"- data: {dt.attrs.get('data_source', '')} (sha256 {dt.attrs['data_sha256'][:12]}…)",
-        f"- terms: {', '.join(result.config.terms)}; parametrisation across φ: "
-        f"{result.config.phi_mode}; noise: {result.config.noise}",
-        f"- seed: {result.seed}; intervals: {gdt.CI_PROB:.0%} equal-tailed (ETI)",
+        f"- terms: {', '.join(config['terms'])}; parametrisation across φ: "
+        f"{config['phi_mode']}; noise: {config['noise']}",
+        f"- seed: {dt.attrs['seed']}; intervals: {gdt.CI_PROB:.0%} equal-tailed (ETI)",
         f"- PSIS-LOO: elpd = {loo['elpd']:.1f} ± {loo['se']:.1f}, p_loo = {loo['p']:.1f}, "
         f"max Pareto k = {loo['max_pareto_k']:.2f} ({loo['n_bad_k']} jumps with k > 0.7)",
         "",
     ]
-    if result.warnings:
-        lines += ["**Warnings**", ""] + [f"- {w}" for w in result.warnings] + [""]
+    if fit_warnings:
+        lines += ["**Warnings**", ""] + [f"- {w}" for w in fit_warnings] + [""]
     lines += ["## Posterior summary", "", markdown_table(summary), "", "## Sampler", ""]
     lines += [
         markdown_table(
             diag[
                 [
                     "run",
-                    "n_walkers",
+                    "n_ensembles",
+                    "n_chains",
                     "n_steps",
                     "tau_max",
                     "steps_over_tau",
+                    "rhat_max",
+                    "ess_min",
                     "acceptance",
                     "converged",
                 ]
@@ -366,7 +372,6 @@ def write_fit_report(
             "",
         ]
     figs: dict[str, Figure] = {"predictive.png": plot_predictive(dt)}
-    force_names = list(result.parts[0].model.parameters)
     figs["parameters_vs_phi.png"] = plot_parameters_vs_phi(dt, names, phi_c, truth)
     for phi in dt.posterior["phi"].values:
         t = truth.get(float(phi)) if truth else None
@@ -392,6 +397,24 @@ def _truth_of(truth: Mapping[float, Mapping[str, float]], label: str) -> float:
     return float(truth.get(phi, {}).get(name, np.nan))
 
 
+_SETTING_UNITS = {"amplitude_mm": "mm", "delay_ms": "ms", "settle_periods": "T"}
+
+
+def _row_labels(residuals: pd.DataFrame) -> tuple[pd.Series, list[int]]:
+    """Heat-map row of every cell: its command, plus the settings that vary for it."""
+    varying = [
+        k
+        for k in _SETTING_UNITS
+        if k in residuals and residuals.groupby("command")[k].nunique().max() > 1
+    ]
+    labels = []
+    for r in residuals.to_dict("records"):
+        extra = [f"{r[k]:g} {_SETTING_UNITS[k]}" for k in varying]
+        labels.append(r["command"] + (f" ({', '.join(extra)})" if extra else ""))
+    order = [COMMAND_NAMES.index(c) for c in residuals["command"]]
+    return pd.Series(labels, index=residuals.index), order
+
+
 def plot_residual_heatmap(residuals: pd.DataFrame, title: str, z_threshold: float = 3.0) -> Figure:
     """Mean residual (observed - simulated) per command x phi, one panel per frequency.
 
@@ -402,9 +425,11 @@ def plot_residual_heatmap(residuals: pd.DataFrame, title: str, z_threshold: floa
     -------
     matplotlib.figure.Figure
     """
+    rows, order = _row_labels(residuals)
+    residuals = residuals.assign(row=rows, order=order)
     freqs = sorted(residuals["freq_hz"].unique())
     phis = sorted(residuals["phi"].unique())
-    commands = [c for c in COMMAND_NAMES if c in set(residuals["command"])]
+    commands = list(dict.fromkeys(residuals.sort_values("order")["row"]))
     vmax = max(5.0, float(np.nanmax(np.abs(residuals["mean_residual_mm"]))))
     fig = Figure(
         figsize=(1.25 * len(phis) * len(freqs) + 3.0, 0.55 * len(commands) + 1.8),
@@ -417,7 +442,7 @@ def plot_residual_heatmap(residuals: pd.DataFrame, title: str, z_threshold: floa
         zs = np.full_like(grid, np.nan)
         sub = residuals[residuals["freq_hz"] == f]
         for r in sub.itertuples():
-            i, j = commands.index(r.command), phis.index(r.phi)
+            i, j = commands.index(r.row), phis.index(r.phi)
             grid[i, j], zs[i, j] = r.mean_residual_mm, r.z
         image = ax.imshow(grid, cmap="RdBu_r", vmin=-vmax, vmax=vmax, aspect="auto")
         for i in range(len(commands)):
@@ -456,13 +481,18 @@ def _frame(j: int, i: int):
     return Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=2, ec="k")
 
 
-def write_diagnosis_report(diagnosis, out: Path) -> list[Path]:
+def write_diagnosis_report(record: Mapping, selected: xr.DataTree, out: Path) -> list[Path]:
     """Write ``diagnosis.json``, residual tables, heat maps and ``report.md`` into ``out``.
+
+    Reads only saved results: the ``diagnosis.json`` document and the selected law's
+    DataTree, so a diagnosis can be re-rendered from its files.
 
     Parameters
     ----------
-    diagnosis : granbayes.criticism.Diagnosis
-        Result of :func:`granbayes.criticism.diagnose`.
+    record : mapping
+        The ``diagnosis.json`` document (``Diagnosis.to_json()``).
+    selected : xarray.DataTree
+        The selected law's fit (written as ``posterior_selected.nc``).
     out : Path
         Existing folder.
 
@@ -471,12 +501,16 @@ def write_diagnosis_report(diagnosis, out: Path) -> list[Path]:
     list of Path
     """
     out = Path(out)
-    rec = diagnosis.to_json()
-    label = data_label(diagnosis.baseline.datatree)
+    rec = dict(record)
+    label = data_label(selected)
     written = [out / "diagnosis.json"]
     (out / "diagnosis.json").write_text(json.dumps(rec, indent=2, default=float) + "\n")
-    diagnosis.residuals_before.to_csv(out / "residuals_baseline.csv", index=False)
-    diagnosis.residuals_after.to_csv(out / "residuals_selected.csv", index=False)
+    before = pd.DataFrame(rec["misfit"])
+    after = pd.DataFrame(rec["selected"]["per_cell"]).rename(
+        columns={"residual_after_mm": "mean_residual_mm", "z_after": "z"}
+    )
+    before.to_csv(out / "residuals_baseline.csv", index=False)
+    after.to_csv(out / "residuals_selected.csv", index=False)
     pd.DataFrame([{**c, "added": "+".join(c["added"])} for c in rec["candidates"]]).to_csv(
         out / "candidates.csv", index=False
     )
@@ -486,38 +520,24 @@ def write_diagnosis_report(diagnosis, out: Path) -> list[Path]:
     prefix = f"{label}: " if label else ""
     figs = {
         "residuals_baseline.png": plot_residual_heatmap(
-            diagnosis.residuals_before, f"{prefix}baseline {base_terms}", z
+            before, f"{prefix}baseline {base_terms}", z
         ),
-        "residuals_selected.png": plot_residual_heatmap(
-            diagnosis.residuals_after, f"{prefix}selected {sel_terms}", z
-        ),
-        "predictive_selected.png": plot_predictive(diagnosis.selected.datatree),
+        "residuals_selected.png": plot_residual_heatmap(after, f"{prefix}selected {sel_terms}", z),
+        "predictive_selected.png": plot_predictive(selected),
     }
     for name, fig in figs.items():
         fig.savefig(out / name, dpi=120, bbox_inches="tight")
         written.append(out / name)
-    gdt.write_datatree(diagnosis.selected.datatree, out / "posterior_selected.nc")
+    gdt.write_datatree(selected, out / "posterior_selected.nc")
     written.append(out / "posterior_selected.nc")
-    sel = rec["selected"]
-    worst = [m for m in rec["misfit"] if m["significant"]][:5]
     lines = [f"# What the simulation gets wrong: {Path(rec.get('data_source', '')).name}", ""]
     if label:
         lines += [f"**{label}**", ""]
-    if rec["verdict"] == "extended":
-        lines += [
-            f"**Verdict: extended.** The baseline law ({base_terms}) misses physics; adding "
-            f"**{', '.join(sel['added'])}** gains {sel['elpd_gain']:.1f} ± "
-            f"{sel['elpd_gain_se']:.1f} nats of ELPD and brings the RMSE from "
-            f"{sel['rmse_before_mm']:.2f} mm to {sel['rmse_after_mm']:.2f} mm.",
-        ]
-    else:
-        lines += [
-            f"**Verdict: baseline adequate.** No candidate term improves the baseline "
-            f"({base_terms}) by a clear margin; RMSE {sel['rmse_before_mm']:.2f} mm.",
-        ]
-    lines += ["", f"Baseline misfit ({rec['n_misfit_cells']} cells with |z| > {z:g}):", ""]
+    lines += _verdict_lines(rec, base_terms)
+    worst = [m for m in rec["misfit"] if m["significant"]][:5]
+    lines += ["", f"Baseline misfit ({rec['n_misfit_cells']} cells with |z| > {z:.2f}):", ""]
     lines += [f"- {m['description']}" for m in worst] or ["- none"]
-    lines += ["", "## Candidates (PSIS-LOO; K-fold where Pareto k > 0.7)", ""]
+    lines += ["", "## Candidates (PSIS-LOO; exact refits or K-fold where Pareto k > 0.7)", ""]
     cand = pd.DataFrame(
         [
             {
@@ -529,34 +549,75 @@ def write_diagnosis_report(diagnosis, out: Path) -> list[Path]:
                 "rmse [mm]": f"{c['rmse_mm']:.2f}",
                 "max Pareto k": f"{c['max_pareto_k']:.2f}",
                 "method": c["method"],
+                "converged": "yes" if c["converged"] else "NO",
             }
             for c in rec["candidates"]
         ]
     )
+    lines += [markdown_table(cand) if len(cand) else "(none)", "", f"Rule: {rec['rule']['text']}."]
+    lines += ["", "## Fits the decision rests on", ""]
     lines += [
-        markdown_table(cand) if len(cand) else "(none)",
-        "",
-        f"Rule: {rec['rule']['text']}.",
-        "",
+        f"- {' + '.join(f['terms'])}: {'converged' if f['converged'] else 'NOT converged'}"
+        + (f" ({f['reruns']} rerun(s))" if f["reruns"] else "")
+        + "".join(f"; {w}" for w in f["warnings"])
+        for f in rec["fits"]
     ]
-    if sel["parameters"]:
-        lines += ["## The added physics", "", f"Posterior ({sel['interval']}):", ""]
-        for name, per_phi in sel["parameters"].items():
-            cells = ", ".join(
-                f"φ={phi}: {v[1]:.3g} [{v[0]:.3g}, {v[2]:.3g}]" for phi, v in per_phi.items()
-            )
-            lines.append(f"- `{name}`: {cells}")
-        lines.append("")
-        improved = sorted(sel["per_cell"], key=lambda c: -abs(c["z_before"]))[:5]
-        lines += ["Largest misfits, before -> after:", ""]
-        lines += [
-            f"- {c['command'].replace('_', ' ')} at φ = {c['phi']:g} ({c['freq_hz']:g} Hz): "
-            f"{c['residual_before_mm']:+.1f} mm (z {c['z_before']:+.1f}) -> "
-            f"{c['residual_after_mm']:+.1f} mm (z {c['z_after']:+.1f})"
-            for c in improved
-        ]
-        lines.append("")
-    lines += ["## Figures", ""] + [f"![{n}]({n})" for n in figs]
+    lines += ["", *_added_physics_lines(rec["selected"]), "## Figures", ""]
+    lines += [f"![{n}]({n})" for n in figs]
     (out / "report.md").write_text("\n".join(lines) + "\n")
     written.append(out / "report.md")
     return written
+
+
+def _verdict_lines(rec: Mapping, base_terms: str) -> list[str]:
+    """The verdict in words (data-format.md's three verdicts)."""
+    sel = rec["selected"]
+    gain = (
+        f"{sel['elpd_gain']:.1f} ± {sel['elpd_gain_se']:.1f} nats of ELPD "
+        f"({sel['elpd_gain_cells']:.1f} ± {sel['elpd_gain_cells_se']:.1f} predicting "
+        f"unseen settings, leave-one-cell-out)"
+    )
+    rmse = f"RMSE {sel['rmse_before_mm']:.2f} mm -> {sel['rmse_after_mm']:.2f} mm"
+    if rec["verdict"] == "extended":
+        return [
+            f"**Verdict: extended.** The baseline law ({base_terms}) misses physics; adding "
+            f"**{', '.join(sel['added'])}** gains {gain}, {rmse}, and leaves no misfit cell."
+        ]
+    if rec["verdict"] == "baseline_adequate":
+        return [
+            f"**Verdict: baseline adequate.** No misfit cell and no candidate term improves "
+            f"the baseline ({base_terms}) by a clear margin; RMSE {sel['rmse_before_mm']:.2f} mm."
+        ]
+    helped = (
+        f"Adding {', '.join(sel['added'])} helped ({gain}, {rmse}) but does not explain it. "
+        if sel["added"]
+        else "No library term removes it. "
+    )
+    where = [f"- {m['description']}" for m in rec["residual_misfit"][:8]]
+    return [
+        "**Verdict: misfit remains.** The data show physics that the library does not hold: "
+        + helped
+        + "No term is named as the cause. Where the law still fails:",
+        "",
+        *where,
+    ]
+
+
+def _added_physics_lines(sel: Mapping) -> list[str]:
+    if not sel["parameters"]:
+        return []
+    lines = ["## The added physics", "", f"Posterior ({sel['interval']}):", ""]
+    for name, per_phi in sel["parameters"].items():
+        cells = ", ".join(
+            f"φ={phi}: {v[1]:.3g} [{v[0]:.3g}, {v[2]:.3g}]" for phi, v in per_phi.items()
+        )
+        lines.append(f"- `{name}`: {cells}")
+    improved = sorted(sel["per_cell"], key=lambda c: -abs(c["z_before"]))[:5]
+    lines += ["", "Largest misfits, before -> after:", ""]
+    lines += [
+        f"- {c['command'].replace('_', ' ')} at φ = {c['phi']:g} ({c['freq_hz']:g} Hz): "
+        f"{c['residual_before_mm']:+.1f} mm (z {c['z_before']:+.1f}) -> "
+        f"{c['residual_after_mm']:+.1f} mm (z {c['z_after']:+.1f})"
+        for c in improved
+    ]
+    return [*lines, ""]

@@ -1,99 +1,188 @@
-"""Run an emcee ensemble until it has converged (the sampler knows nothing of the model).
+"""Independent emcee ensembles run until they agree (the sampler knows nothing of the model).
 
-:func:`run_ensemble` takes a vectorised function ``f(positions) -> (log_prob, blobs)``
-(arrays of shape ``(n,)`` and ``(n, m)``), starting positions and a seed. It samples in
-chunks; after each chunk it estimates the integrated autocorrelation time ``tau`` of every
-coordinate (emcee's estimator) and stops once the chain after burn-in is at least
-``tau_factor`` (default 50) times the largest ``tau`` and ``tau`` has stabilised, or at
-``max_steps``. With an HDF5 checkpoint file the run is saved after every chunk (chain,
-blobs, acceptance counts and emcee's random state, written to a temporary file and moved
-into place, so a checkpoint is always whole). An interrupted run resumes from the last
-checkpoint, losing at most one chunk of work, and a resumed run is bit-identical to an
-uninterrupted one with the same seed. (emcee's own ``HDFBackend`` reopens the file at every
-step, which cost a third of the sampling time here.)
+:func:`run_ensembles` takes a vectorised function ``f(positions) -> (log_prob, blobs)``
+(arrays of shape ``(n,)`` and ``(n, m)``), one array of starting positions per ensemble and
+a seed. The ensembles are advanced side by side in chunks of ``check_every`` steps. After
+each chunk the run is *converged* when all three hold:
+
+1. **autocorrelation**: in every ensemble the chain after burn-in is at least
+   ``tau_factor`` times its largest integrated autocorrelation time ``tau`` (emcee's
+   estimator). Short chains underestimate ``tau``; criteria 2 and 3 are the guards (a
+   multi-chain ESS over every walker and R-hat between ensembles started apart), which is
+   why ``tau_factor`` can be 10 rather than emcee's advice of 50 for estimating ``tau``
+   itself;
+2. **agreement between independent ensembles**: the rank-normalised split R-hat
+   (Vehtari et al. 2021, computed with ``arviz_stats``) of every coordinate and of the
+   log-probability, with one chain per *ensemble* (its post-burn-in draws in step order),
+   is at most ``max_rhat``. R-hat across the walkers of one ensemble cannot see an
+   ensemble parked in the wrong mode; R-hat across ensembles started apart can;
+3. **enough effective draws for what is reported**: bulk ESS and the tail ESS of the 5%
+   and 95% quantiles (the 90% intervals that granbayes reports) of every coordinate, over
+   all walkers of all ensembles, are at least ``min_ess``.
+
+When the ensembles disagree (criterion 2 fails although criterion 1 holds) the rule is:
+an ensemble whose median log-probability lies more than ``mode_gap`` nats below the best
+ensemble's is in a worse-supported mode; it is restarted from the best ensemble's walkers
+(at most ``max_restarts`` times per run) and a warning says so. If restarts are exhausted,
+the result keeps only the ensembles of the best-supported mode, says so in a warning, and
+is not converged. Ensembles that disagree at comparable log-probability are a multimodal
+posterior: sampling continues to ``max_steps`` and the warning says so. Nothing is silent.
+
+With a checkpoint folder every ensemble is saved after every chunk (chain, blobs,
+acceptance counts, emcee's random state and the step at which its chain began, written to
+a temporary file and moved into place, so a checkpoint is always whole). All decisions
+depend only on the stored chains, so a resumed run is bit-identical to an uninterrupted
+one with the same seed. (emcee's own ``HDFBackend`` reopens the file at every step, which
+cost a third of the sampling time here.)
 """
 
 from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import emcee
 import h5py
 import numpy as np
+from arviz_stats.base import array_stats
 
 __all__ = [
-    "SamplerSettings",
+    "Checkpoint",
+    "CheckpointMismatchError",
+    "ProgressInfo",
     "SamplerRun",
-    "run_ensemble",
-    "save_checkpoint",
+    "SamplerSettings",
     "load_checkpoint",
+    "run_ensembles",
+    "save_checkpoint",
 ]
 
 LogProbFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
+#: Quantiles whose tail ESS the stopping rule needs (those of the reported 90% intervals).
+TAIL_PROB = (0.05, 0.95)
+
+
+class CheckpointMismatchError(ValueError):
+    """A checkpoint was written for other data, model or settings than the run resuming it."""
+
 
 @dataclass(frozen=True)
 class SamplerSettings:
-    """How long and how to sample.
+    """How to sample and when to stop.
 
     Parameters
     ----------
     n_walkers : int
-        Ensemble size (at least twice the dimension, and even).
+        Walkers per ensemble (even, and at least twice the dimension; raised to that
+        minimum automatically).
+    n_ensembles : int
+        Independent ensembles (each started from its own optimised point).
     max_steps : int
         Hard cap on steps per walker.
     check_every : int
         Steps between convergence checks.
     tau_factor : float
-        Required post-burn-in chain length in units of the largest autocorrelation time.
+        Autocorrelation criterion: post-burn-in chain length of every ensemble in units of
+        its largest autocorrelation time.
     burn_factor : float
         Burn-in discarded, in units of the largest autocorrelation time.
+    min_ess : float
+        Bulk and tail (5% and 95% quantile) effective sample size required of every
+        coordinate, over all ensembles.
+    max_rhat : float
+        Largest rank-normalised split R-hat across ensembles.
+    mode_gap : float
+        Median log-probability deficit [nats] beyond which a disagreeing ensemble is in a
+        worse-supported mode.
+    max_restarts : int
+        Restarts of stuck ensembles per run.
     n_draws : int
         Draws kept per walker after burn-in and thinning.
     moves : {"de", "stretch"}
         ``de``: differential evolution (80%) + snooker (20%), good for the correlated
         valleys of force laws; ``stretch``: emcee's default affine-invariant move.
-    progress : bool
-        Show a tqdm progress bar.
     """
 
-    n_walkers: int = 32
+    n_walkers: int = 8
+    n_ensembles: int = 4
     max_steps: int = 20_000
-    check_every: int = 250
-    tau_factor: float = 50.0
+    check_every: int = 100
+    tau_factor: float = 10.0
     burn_factor: float = 3.0
-    n_draws: int = 250
-    moves: str = "de"
-    progress: bool = False
+    min_ess: float = 400.0
+    max_rhat: float = 1.01
+    mode_gap: float = 5.0
+    max_restarts: int = 2
+    n_draws: int = 100
+    moves: Literal["de", "stretch"] = "de"
+
+    def walkers_for(self, ndim: int) -> int:
+        """Walkers per ensemble for a problem of dimension ``ndim`` (even, >= 2 ndim)."""
+        n = max(self.n_walkers, 2 * ndim)
+        return n + (n % 2)
+
+
+@dataclass(frozen=True)
+class ProgressInfo:
+    """What a progress display shows after each chunk.
+
+    Attributes
+    ----------
+    step, max_steps : int
+        Steps per walker done and the cap.
+    tau_max : float
+        Largest autocorrelation time over ensembles [steps] (NaN before it is known).
+    rhat_max, ess_min : float
+        Largest R-hat across ensembles and smallest bulk/tail ESS (NaN before known).
+    converged : bool
+        Whether the stopping rule is met.
+    """
+
+    step: int
+    max_steps: int
+    tau_max: float
+    rhat_max: float
+    ess_min: float
+    converged: bool
 
 
 @dataclass
 class SamplerRun:
-    """A finished (or capped) ensemble run.
+    """A finished (or capped) run of several ensembles, pooled.
 
     Attributes
     ----------
-    samples : ndarray, shape (n_walkers, n_draws, ndim)
-        Kept draws (after burn-in and thinning), walker-major like ArviZ chains.
-    log_prob : ndarray, shape (n_walkers, n_draws)
-    blobs : ndarray, shape (n_walkers, n_draws, m)
+    samples : ndarray, shape (n_chains, n_draws, ndim)
+        Kept draws (after burn-in and thinning); one chain per walker, the walkers of
+        ensemble 0 first (``ensemble_of_chain``), like ArviZ chains.
+    log_prob : ndarray, shape (n_chains, n_draws)
+    blobs : ndarray, shape (n_chains, n_draws, m)
         Per-observation log-likelihood of the kept draws.
-    tau : ndarray, shape (ndim,)
-        Integrated autocorrelation times [steps].
-    acceptance : ndarray, shape (n_walkers,)
-        Acceptance fraction per walker.
+    ensemble_of_chain : ndarray of int, shape (n_chains,)
+        Ensemble each chain belongs to.
+    tau : ndarray, shape (n_ensembles, ndim)
+        Integrated autocorrelation times [steps] per ensemble (all ensembles run).
+    rhat : ndarray, shape (ndim,)
+        Rank-normalised split R-hat across the kept ensembles.
+    ess_bulk, ess_tail : ndarray, shape (ndim,)
+        Effective sample sizes of the pooled kept draws (tail: 5% and 95% quantiles).
+    acceptance : ndarray, shape (n_chains,)
+        Acceptance fraction per kept walker.
     n_steps : int
         Steps per walker in total.
-    burn : int
-        Burn-in [steps] (``burn_factor`` autocorrelation times).
-    first, thin : int
-        First kept step and thinning interval.
+    burn : ndarray of int, shape (n_ensembles,)
+        Burn-in [steps] of each ensemble's current chain.
+    thin : int
+        Thinning interval of the kept draws.
     converged : bool
-        Whether the chain reached ``tau_factor * tau`` after burn-in.
+        Whether the stopping rule (module docstring) was met.
+    warnings : list of str
+        Restarts, dropped ensembles and disagreements, in words.
     seed : int
         The seed used.
     """
@@ -101,16 +190,21 @@ class SamplerRun:
     samples: np.ndarray
     log_prob: np.ndarray
     blobs: np.ndarray
+    ensemble_of_chain: np.ndarray
     tau: np.ndarray
+    rhat: np.ndarray
+    ess_bulk: np.ndarray
+    ess_tail: np.ndarray
     acceptance: np.ndarray
     n_steps: int
-    burn: int
-    first: int
+    burn: np.ndarray
     thin: int
     converged: bool
-    seed: int
+    warnings: list[str] = field(default_factory=list)
+    seed: int = 0
 
 
+# ----------------------------------------------------------------------------------------
 def _moves(kind: str) -> list:
     if kind == "de":
         return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
@@ -135,90 +229,223 @@ def _adapt(fn: LogProbFn, m: int) -> Callable[[np.ndarray], list]:
 
 
 def _tau(chain: np.ndarray) -> np.ndarray:
-    """Integrated autocorrelation time per coordinate (emcee's estimator, no tolerance)."""
+    """Integrated autocorrelation time per coordinate (emcee's estimator, no tolerance).
+
+    emcee warns when the chain is shorter than 50 tau; the stopping rule applies its own
+    length criterion, so that warning (and only it) is silenced here.
+    """
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+        warnings.filterwarnings("ignore", message=".*chain is shorter than", module="emcee")
         return emcee.autocorr.integrated_time(chain, tol=0)
 
 
-def save_checkpoint(backend: emcee.backends.Backend, path: Path, fingerprint: str = "") -> None:
-    """Write an in-memory emcee backend to ``path`` atomically (temporary file + rename)."""
+# ----------------------------------------------------------------------------------------
+# checkpoints
+def save_checkpoint(
+    path: Path,
+    backends: Sequence[tuple[emcee.backends.Backend, int]],
+    fingerprint: str = "",
+    notes: Sequence[str] = (),
+) -> None:
+    """Write the ensembles of a run to one HDF5 file atomically (temporary file + rename).
+
+    Parameters
+    ----------
+    path : Path
+        Checkpoint file.
+    backends : sequence of (emcee.backends.Backend, int)
+        Every ensemble's in-memory chain and the global step at which it began (non-zero
+        after a restart).
+    fingerprint : str
+        Identity of the problem; a resume with another one is refused.
+    notes : sequence of str
+        The run's warnings so far (restarts), so that a resumed run reports them too.
+    """
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    n = backend.iteration
-    name, key, pos, has_gauss, cached = backend.random_state
     with h5py.File(tmp, "w") as f:
-        f.create_dataset("chain", data=backend.chain[:n])
-        f.create_dataset("log_prob", data=backend.log_prob[:n])
-        if backend.blobs is not None:
-            f.create_dataset("blobs", data=np.asarray(backend.blobs[:n], dtype=float))
-        f.create_dataset("accepted", data=backend.accepted)
-        f.create_dataset("random_state_key", data=np.asarray(key))
-        f.attrs.update(
-            iteration=n,
-            random_state_name=name,
-            random_state_pos=int(pos),
-            random_state_has_gauss=int(has_gauss),
-            random_state_cached_gaussian=float(cached),
-            fingerprint=fingerprint,
-        )
+        f.attrs.update(fingerprint=fingerprint, n_ensembles=len(backends))
+        f.attrs["notes"] = np.array(list(notes), dtype=h5py.string_dtype())
+        for i, (backend, offset) in enumerate(backends):
+            g = f.create_group(f"ensemble{i}")
+            n = backend.iteration
+            name, key, pos, has_gauss, cached = backend.random_state
+            g.create_dataset("chain", data=backend.chain[:n])
+            g.create_dataset("log_prob", data=backend.log_prob[:n])
+            if backend.blobs is not None:
+                g.create_dataset("blobs", data=np.asarray(backend.blobs[:n], dtype=float))
+            g.create_dataset("accepted", data=backend.accepted)
+            g.create_dataset("random_state_key", data=np.asarray(key))
+            g.attrs.update(
+                iteration=n,
+                offset=int(offset),
+                random_state_name=name,
+                random_state_pos=int(pos),
+                random_state_has_gauss=int(has_gauss),
+                random_state_cached_gaussian=float(cached),
+            )
     os.replace(tmp, path)
 
 
-def checkpoint_fingerprint(path: Path) -> str | None:
-    """The fingerprint stored in a checkpoint (``None`` if there is no checkpoint)."""
+@dataclass(frozen=True)
+class Checkpoint:
+    """A run restored from :func:`save_checkpoint`."""
+
+    backends: list[tuple[emcee.backends.Backend, int]]
+    fingerprint: str
+    notes: list[str]
+
+
+def load_checkpoint(path: Path) -> Checkpoint | None:
+    """The ensembles stored in a checkpoint file (``None`` if there is none)."""
     path = Path(path)
     if not path.exists():
         return None
     with h5py.File(path, "r") as f:
-        return str(f.attrs.get("fingerprint", ""))
+        backends = []
+        for i in range(int(f.attrs["n_ensembles"])):
+            g = f[f"ensemble{i}"]
+            chain = g["chain"][...]
+            backend = emcee.backends.Backend()
+            backend.reset(chain.shape[1], chain.shape[2])
+            backend.chain = chain
+            backend.log_prob = g["log_prob"][...]
+            backend.blobs = g["blobs"][...] if "blobs" in g else None
+            backend.accepted = g["accepted"][...]
+            backend.iteration = int(g.attrs["iteration"])
+            backend.random_state = (
+                str(g.attrs["random_state_name"]),
+                g["random_state_key"][...],
+                int(g.attrs["random_state_pos"]),
+                int(g.attrs["random_state_has_gauss"]),
+                float(g.attrs["random_state_cached_gaussian"]),
+            )
+            backends.append((backend, int(g.attrs["offset"])))
+        notes = [n.decode() if isinstance(n, bytes) else str(n) for n in f.attrs["notes"]]
+        return Checkpoint(backends, str(f.attrs["fingerprint"]), notes)
 
 
-def load_checkpoint(path: Path) -> emcee.backends.Backend | None:
-    """An in-memory emcee backend restored from a checkpoint (``None`` if there is none)."""
-    path = Path(path)
-    if not path.exists():
-        return None
-    with h5py.File(path, "r") as f:
-        n = int(f.attrs["iteration"])
-        chain = f["chain"][...]
-        backend = emcee.backends.Backend()
-        backend.reset(chain.shape[1], chain.shape[2])
-        backend.chain = chain
-        backend.log_prob = f["log_prob"][...]
-        backend.blobs = f["blobs"][...] if "blobs" in f else None
-        backend.accepted = f["accepted"][...]
-        backend.iteration = n
-        backend.random_state = (
-            str(f.attrs["random_state_name"]),
-            f["random_state_key"][...],
-            int(f.attrs["random_state_pos"]),
-            int(f.attrs["random_state_has_gauss"]),
-            float(f.attrs["random_state_cached_gaussian"]),
+# ----------------------------------------------------------------------------------------
+@dataclass
+class _Ensemble:
+    """One emcee ensemble and the global step at which its current chain began."""
+
+    sampler: emcee.EnsembleSampler
+    offset: int
+    start: np.ndarray | None  # positions for the next run_mcmc (None: continue)
+
+
+@dataclass(frozen=True)
+class _Check:
+    """The stopping rule evaluated on the stored chains at one global step."""
+
+    tau: np.ndarray  # (n_ens, ndim)
+    burn: np.ndarray  # (n_ens,)
+    autocorr_ok: bool
+    rhat: np.ndarray  # (ndim,) (NaN until autocorr_ok)
+    rhat_lp: float
+    ess_bulk: np.ndarray
+    ess_tail: np.ndarray
+    lp_median: np.ndarray  # (n_ens,)
+    lp_spread: float  # robust sd of the best ensemble's log-probability
+
+    def converged(self, s: SamplerSettings) -> bool:
+        return bool(
+            self.autocorr_ok
+            and np.all(self.rhat <= s.max_rhat)
+            and self.rhat_lp <= s.max_rhat
+            and np.all(self.ess_bulk >= s.min_ess)
+            and np.all(self.ess_tail >= s.min_ess)
         )
-    return backend if n > 0 else None
 
 
-def _burn(tau: np.ndarray, done: int, s: SamplerSettings) -> int:
+def _burn(tau: np.ndarray, length: int, s: SamplerSettings) -> int:
     """Burn-in [steps]: ``burn_factor`` autocorrelation times (half the chain if unknown)."""
     if not np.all(np.isfinite(tau)):
-        return done // 2
-    return min(int(np.ceil(s.burn_factor * np.max(tau))), done // 2)
+        return length // 2
+    return min(int(np.ceil(s.burn_factor * np.max(tau))), length // 2)
 
 
-def _assess(chain: np.ndarray, s: SamplerSettings) -> tuple[np.ndarray, bool]:
-    """Autocorrelation times after burn-in and whether the chain is long enough."""
-    done = chain.shape[0]
-    tau = _tau(chain[done // 4 :])
-    burn = _burn(tau, done, s)
+def _autocorr(chain: np.ndarray, s: SamplerSettings) -> tuple[np.ndarray, int, bool]:
+    """Autocorrelation times after burn-in, the burn-in and the length criterion."""
+    length = chain.shape[0]
+    if length < 4:
+        return np.full(chain.shape[-1], np.nan), length // 2, False
+    tau = _tau(chain[length // 4 :])
+    burn = _burn(tau, length, s)
     tau = _tau(chain[burn:])
-    ok = bool(np.all(np.isfinite(tau)) and done - burn >= s.tau_factor * np.max(tau))
-    return tau, ok
+    ok = bool(np.all(np.isfinite(tau)) and length - burn >= s.tau_factor * np.max(tau))
+    return tau, burn, ok
 
 
-def run_ensemble(
+def _chains(ens: Sequence[_Ensemble], done: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(chain, log_prob) of every ensemble up to global step ``done``."""
+    out = []
+    for e in ens:
+        n = done - e.offset
+        out.append((e.sampler.get_chain()[:n], e.sampler.get_log_prob()[:n]))
+    return out
+
+
+def _check(ens: Sequence[_Ensemble], done: int, s: SamplerSettings) -> _Check:
+    chains = _chains(ens, done)
+    taus, burns, oks = zip(*(_autocorr(c, s) for c, _ in chains), strict=True)
+    taus, burns = np.array(taus), np.array(burns)
+    autocorr_ok = all(oks)
+    ndim = taus.shape[1]
+    post = [(c[b:], lp[b:]) for (c, lp), b in zip(chains, burns, strict=True)]
+    lp_median = np.array([np.median(lp) if lp.size else -np.inf for _, lp in post])
+    best = int(np.argmax(lp_median))
+    lp_best = post[best][1]
+    q25, q75 = np.percentile(lp_best, [25, 75]) if lp_best.size else (0.0, 0.0)
+    nan = np.full(ndim, np.nan)
+    if not autocorr_ok:
+        return _Check(taus, burns, False, nan, np.nan, nan, nan, lp_median, (q75 - q25) / 1.35)
+    n = min(len(lp) for _, lp in post)
+    # one chain per ensemble for R-hat: post-burn-in draws in step order, walkers inside
+    per_ens = np.stack([c[-n:].reshape(-1, ndim) for c, _ in post])  # (n_ens, n*w, ndim)
+    lp_ens = np.stack([lp[-n:].reshape(-1) for _, lp in post])
+    rhat = np.atleast_1d(array_stats.rhat(per_ens, chain_axis=0, draw_axis=1, method="rank"))
+    rhat_lp = float(array_stats.rhat(lp_ens, chain_axis=0, draw_axis=1, method="rank"))
+    # ESS with every walker as a chain: (n_ens * w, n, ndim)
+    walkers = np.concatenate([np.swapaxes(c[-n:], 0, 1) for c, _ in post])
+    ess_bulk = np.atleast_1d(array_stats.ess(walkers, chain_axis=0, draw_axis=1, method="bulk"))
+    ess_tail = np.atleast_1d(
+        array_stats.ess(walkers, chain_axis=0, draw_axis=1, method="tail", prob=TAIL_PROB)
+    )
+    spread = (q75 - q25) / 1.35
+    return _Check(taus, burns, True, rhat, rhat_lp, ess_bulk, ess_tail, lp_median, spread)
+
+
+def _stuck(check: _Check, s: SamplerSettings) -> list[int]:
+    """Ensembles in a worse-supported mode (median log-probability far below the best)."""
+    if not check.autocorr_ok or check.converged(s) or len(check.lp_median) < 2:
+        return []
+    best = float(np.max(check.lp_median))
+    gap = max(s.mode_gap, 3.0 * check.lp_spread)
+    return [i for i, m in enumerate(check.lp_median) if m < best - gap]
+
+
+def _make_sampler(
+    fn: Callable, n_walkers: int, ndim: int, s: SamplerSettings, backend=None
+) -> emcee.EnsembleSampler:
+    return emcee.EnsembleSampler(
+        n_walkers,
+        ndim,
+        fn,
+        vectorize=True,
+        moves=_moves(s.moves),
+        backend=backend if backend is not None else emcee.backends.Backend(),
+    )
+
+
+def _spawn(seed: int, n: int) -> list[int]:
+    return [int(q.generate_state(1)[0]) for q in np.random.SeedSequence(seed).spawn(n)]
+
+
+def run_ensembles(
     log_prob_fn: LogProbFn,
-    initial: np.ndarray,
+    initial: Sequence[np.ndarray],
     n_blobs: int,
     *,
     seed: int,
@@ -226,104 +453,220 @@ def run_ensemble(
     checkpoint: str | Path | None = None,
     resume: bool = False,
     fingerprint: str = "",
+    progress: Callable[[ProgressInfo], None] | None = None,
 ) -> SamplerRun:
-    """Sample until converged or capped.
+    """Sample with independent ensembles until they agree (module docstring), or capped.
 
     Parameters
     ----------
     log_prob_fn : callable
         ``f(x) -> (log_prob, blobs)`` for positions ``x`` of shape ``(n, ndim)``.
-    initial : ndarray, shape (n_walkers, ndim)
-        Starting positions (ignored when resuming a non-empty backend).
+    initial : sequence of ndarray, each of shape (n_walkers, ndim)
+        Starting positions, one array per ensemble (ignored when resuming).
     n_blobs : int
         Length of each walker's blob (the number of observations).
     seed : int
-        Seed of emcee's random state (used for fresh runs; resumed runs continue the
-        stored state).
+        Master seed: every ensemble's emcee random state (and every restart's) is spawned
+        from it.
     settings : SamplerSettings, optional
-        Chain length and moves.
+        Stopping rule and moves (``n_ensembles`` is taken from ``initial``).
     checkpoint : str or Path, optional
-        HDF5 checkpoint file of this run (written after every chunk).
+        HDF5 checkpoint file of this run (all ensembles), written after every chunk.
     resume : bool
         Continue the run stored in ``checkpoint`` (else it is started afresh).
     fingerprint : str
-        Identity of the problem (data, model, settings); stored in the checkpoint, and a
-        resume from a checkpoint with another fingerprint is refused.
+        Identity of the problem (data, model, settings); stored in the checkpoints, and a
+        resume from checkpoints with another fingerprint is refused.
+    progress : callable, optional
+        Called with a :class:`ProgressInfo` after every chunk.
 
     Returns
     -------
     SamplerRun
+
+    Raises
+    ------
+    CheckpointMismatchError
+        When resuming from checkpoints written for another problem.
     """
     s = settings or SamplerSettings()
-    initial = np.asarray(initial, dtype=float)
-    n_walkers, ndim = initial.shape
-    if n_walkers != s.n_walkers:
-        raise ValueError(f"initial has {n_walkers} walkers, settings say {s.n_walkers}")
-    store = None
-    if resume and checkpoint is not None:
-        stored = checkpoint_fingerprint(checkpoint)
-        if stored is not None and stored != fingerprint:
-            raise ValueError(
-                f"checkpoint {checkpoint} was made for other data or settings; "
-                "rerun without --resume"
+    initial = [np.asarray(x, dtype=float) for x in initial]
+    n_walkers, ndim = initial[0].shape
+    if any(x.shape != (n_walkers, ndim) for x in initial):
+        raise ValueError("every ensemble needs initial positions of the same shape")
+    if n_walkers < 2 * ndim or n_walkers % 2:
+        raise ValueError(f"{n_walkers} walkers: need an even number >= 2 x {ndim} dimensions")
+    fn = _adapt(log_prob_fn, n_blobs)
+    path = Path(checkpoint) if checkpoint is not None else None
+    stored = load_checkpoint(path) if resume and path is not None else None
+    notes: list[str] = []
+    ens: list[_Ensemble] = []
+    if stored is not None:
+        if stored.fingerprint != fingerprint:
+            raise CheckpointMismatchError(
+                f"checkpoint {path} was made for other data or settings; start afresh "
+                "instead of resuming"
             )
-        store = load_checkpoint(checkpoint)
-    if store is not None and store.shape != (n_walkers, ndim):
-        raise ValueError(f"checkpoint {checkpoint} has shape {store.shape}, not {initial.shape}")
-    store = store if store is not None else emcee.backends.Backend()
-    sampler = emcee.EnsembleSampler(
-        n_walkers,
-        ndim,
-        _adapt(log_prob_fn, n_blobs),
-        vectorize=True,
-        moves=_moves(s.moves),
-        backend=store,
-    )
-    if sampler.iteration == 0:
-        sampler.random_state = np.random.RandomState(seed).get_state()
-        start = initial
+        shapes = {b.shape for b, _ in stored.backends}
+        if shapes != {(n_walkers, ndim)} or len(stored.backends) != len(initial):
+            raise CheckpointMismatchError(
+                f"checkpoint {path} holds {len(stored.backends)} ensemble(s) of shape "
+                f"{sorted(shapes)}, not {len(initial)} of {(n_walkers, ndim)}"
+            )
+        for backend, offset in stored.backends:
+            ens.append(_Ensemble(_make_sampler(fn, n_walkers, ndim, s, backend), offset, None))
+        notes = list(stored.notes)
     else:
-        start = None  # continue from the stored last sample and random state
-    # Checks happen at multiples of check_every and depend only on the stored chain, so a
-    # resumed run makes exactly the decisions of an uninterrupted one.
+        for x, sub_seed in zip(initial, _spawn(seed, len(initial)), strict=True):
+            sampler = _make_sampler(fn, n_walkers, ndim, s)
+            sampler.random_state = np.random.RandomState(sub_seed).get_state()
+            ens.append(_Ensemble(sampler, 0, x))
+    # the global step: every ensemble's chain ends there (offset + its own length)
+    done = max(e.offset + e.sampler.iteration for e in ens)
+    restarts = len(notes)
     c = s.check_every
+    check: _Check | None = None
     while True:
-        done = sampler.iteration
         if done >= s.max_steps or (done > 0 and done % c == 0):
-            chain = sampler.get_chain()
-            tau, converged = _assess(chain[:done], s)
-            if done - c >= c:
-                previous, _ = _assess(chain[: done - c], s)
-                converged = converged and bool(np.all(np.abs(previous - tau) <= 0.05 * tau))
-            else:
-                converged = False
+            check = _check(ens, done, s)
+            converged = check.converged(s)
+            if progress is not None:
+                progress(_progress(check, done, s, converged))
             if converged or done >= s.max_steps:
                 break
+            stuck = _stuck(check, s) if restarts < s.max_restarts else []
+            if stuck:
+                restarts += 1
+                best = int(np.argmax(check.lp_median))
+                notes.append(_restart_note(stuck, best, check, done))
+                for i in stuck:
+                    ens[i] = _restart(ens[best], fn, n_walkers, ndim, s, seed, done, i, restarts)
         n = min(c - done % c, s.max_steps - done)
-        sampler.run_mcmc(start, n, progress=s.progress, store=True)
-        start = None
-        if checkpoint is not None:
-            save_checkpoint(sampler.backend, Path(checkpoint), fingerprint)
-    chain = sampler.get_chain()
-    burn = _burn(tau, done, s)
-    kept = done - burn
-    thin = max(1, kept // s.n_draws)
-    first = done - thin * min(s.n_draws, kept)
-    sel = slice(first, done, thin)
-    samples = np.swapaxes(chain[sel], 0, 1)
-    log_prob = sampler.get_log_prob()[sel].T
-    kept_blobs = np.asarray(sampler.get_blobs()[sel], dtype=float)
-    blobs = np.swapaxes(kept_blobs.reshape(samples.shape[1], n_walkers, n_blobs), 0, 1)
+        for e in ens:
+            e.sampler.run_mcmc(e.start, n, progress=False, store=True)
+            e.start = None
+        done += n
+        if path is not None:
+            save_checkpoint(path, [(e.sampler.backend, e.offset) for e in ens], fingerprint, notes)
+    assert check is not None
+    return _pool(ens, check, done, s, seed, notes, n_blobs)
+
+
+def _progress(check: _Check, done: int, s: SamplerSettings, converged: bool) -> ProgressInfo:
+    tau = float(np.nanmax(check.tau)) if np.any(np.isfinite(check.tau)) else np.nan
+    rhat = float(np.nanmax([*check.rhat, check.rhat_lp])) if check.autocorr_ok else np.nan
+    ess = (
+        float(min(np.min(check.ess_bulk), np.min(check.ess_tail))) if check.autocorr_ok else np.nan
+    )
+    return ProgressInfo(done, s.max_steps, tau, rhat, ess, converged)
+
+
+def _restart_note(stuck: list[int], best: int, check: _Check, done: int) -> str:
+    worst = ", ".join(f"{i} (median log-probability {check.lp_median[i]:.1f})" for i in stuck)
+    return (
+        f"step {done}: ensemble(s) {worst} stuck in a worse-supported mode than ensemble "
+        f"{best} ({check.lp_median[best]:.1f}); restarted from ensemble {best}'s walkers"
+    )
+
+
+def _restart(
+    best: _Ensemble,
+    fn: Callable,
+    n_walkers: int,
+    ndim: int,
+    s: SamplerSettings,
+    seed: int,
+    done: int,
+    index: int,
+    restart: int,
+) -> _Ensemble:
+    """A fresh chain for a stuck ensemble, started from the best ensemble's walkers.
+
+    Deterministic in (seed, step, ensemble, restart number), so a resumed run repeats it.
+    """
+    rng = np.random.default_rng([seed, done, index, restart])
+    chain = best.sampler.get_chain()
+    last = chain[-1]
+    scale = np.std(chain[len(chain) // 2 :].reshape(-1, ndim), axis=0)
+    start = last + 1e-2 * scale * rng.standard_normal(last.shape)
+    sampler = _make_sampler(fn, n_walkers, ndim, s)
+    sampler.random_state = np.random.RandomState(rng.integers(2**32)).get_state()
+    return _Ensemble(sampler, done, start)
+
+
+def _pool(
+    ens: Sequence[_Ensemble],
+    check: _Check,
+    done: int,
+    s: SamplerSettings,
+    seed: int,
+    notes: list[str],
+    n_blobs: int,
+) -> SamplerRun:
+    """Pool the kept draws of the ensembles of the best-supported mode."""
+    converged = check.converged(s)
+    keep = list(range(len(ens)))
+    if not converged:
+        dropped = _stuck(check, s)
+        if dropped:
+            keep = [i for i in keep if i not in dropped]
+            notes.append(
+                f"ensemble(s) {', '.join(map(str, dropped))} stayed in a worse-supported mode "
+                f"after {s.max_restarts} restart(s): only ensembles {keep} (the best-supported "
+                "mode) are kept; the posterior may be incomplete"
+            )
+        elif check.autocorr_ok and not (
+            np.all(check.rhat <= s.max_rhat) and check.rhat_lp <= s.max_rhat
+        ):
+            notes.append(
+                f"independent ensembles disagree at comparable log-probability (R-hat up to "
+                f"{np.nanmax([*check.rhat, check.rhat_lp]):.3f}): the posterior may be "
+                "multimodal or not yet mixed"
+            )
+        else:
+            notes.append(f"not converged after {done} steps: " + _shortfall(check, s))
+    kept_len = min(done - ens[i].offset - int(check.burn[i]) for i in keep)
+    kept_len = max(kept_len, 1)
+    thin = max(1, kept_len // s.n_draws)
+    n_draw = min(s.n_draws, kept_len)
+    samples, log_prob, blobs, acc, which = [], [], [], [], []
+    for i in keep:
+        e = ens[i]
+        n = done - e.offset
+        sel = slice(n - thin * n_draw, n, thin)
+        samples.append(np.swapaxes(e.sampler.get_chain()[sel], 0, 1))
+        log_prob.append(e.sampler.get_log_prob()[sel].T)
+        b = np.asarray(e.sampler.get_blobs()[sel], dtype=float)
+        blobs.append(np.swapaxes(b.reshape(n_draw, -1, n_blobs), 0, 1))
+        acc.append(np.asarray(e.sampler.acceptance_fraction, dtype=float))
+        which.append(np.full(samples[-1].shape[0], i))
+    ndim = samples[0].shape[-1]
+    nan = np.full(ndim, np.nan)
     return SamplerRun(
-        samples=samples,
-        log_prob=log_prob,
-        blobs=blobs,
-        tau=np.asarray(tau, dtype=float),
-        acceptance=np.asarray(sampler.acceptance_fraction, dtype=float),
+        samples=np.concatenate(samples),
+        log_prob=np.concatenate(log_prob),
+        blobs=np.concatenate(blobs),
+        ensemble_of_chain=np.concatenate(which),
+        tau=np.asarray(check.tau, dtype=float),
+        rhat=check.rhat if check.autocorr_ok else nan,
+        ess_bulk=check.ess_bulk if check.autocorr_ok else nan,
+        ess_tail=check.ess_tail if check.autocorr_ok else nan,
+        acceptance=np.concatenate(acc),
         n_steps=int(done),
-        burn=int(burn),
-        first=int(first),
+        burn=np.asarray(check.burn, dtype=int),
         thin=int(thin),
         converged=converged,
+        warnings=notes,
         seed=int(seed),
     )
+
+
+def _shortfall(check: _Check, s: SamplerSettings) -> str:
+    """Which part of the stopping rule is not met, in words."""
+    if not check.autocorr_ok:
+        return (
+            f"chains are shorter than {s.tau_factor:g} autocorrelation times "
+            f"(largest tau {np.nanmax(check.tau):.0f} steps) or tau has not settled"
+        )
+    ess = min(np.min(check.ess_bulk), np.min(check.ess_tail))
+    return f"effective sample size {ess:.0f} < {s.min_ess:g}"

@@ -1,8 +1,11 @@
-"""Tests of the ensemble driver (``granbayes.sampler.run_ensemble``) on analytic targets.
+"""Tests of the ensemble driver (``granbayes.sampler.run_ensembles``) on analytic targets.
 
-The target is a correlated 2-D Gaussian written in plain numpy, so the true posterior
+The main target is a correlated 2-D Gaussian written in plain numpy, so the true posterior
 moments are known exactly and a run costs about a millisecond per step (HDF5
 checkpointing adds a few milliseconds per step, so the resume tests use short chains).
+Two-mode targets check the cross-ensemble rule: an ensemble parked in a worse-supported
+mode is detected and restarted (the failure an autocorrelation criterion alone cannot
+see), and equally supported modes are reported, never silently pooled as converged.
 """
 
 from __future__ import annotations
@@ -12,7 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from granbayes.sampler import SamplerRun, SamplerSettings, load_checkpoint, run_ensemble
+from granbayes.sampler import (
+    CheckpointMismatchError,
+    SamplerRun,
+    SamplerSettings,
+    load_checkpoint,
+    run_ensembles,
+)
 
 MU = np.array([1.0, -2.0])
 SD = np.array([1.0, 2.0])
@@ -53,16 +62,24 @@ class Counting:
         return self.fn(x)
 
 
-def start(n_walkers: int = 16, ndim: int = 2) -> np.ndarray:
-    """A small ball of starting positions away from the mode (fixed)."""
-    return np.array([0.0, 0.0]) + 0.1 * np.random.default_rng(0).standard_normal((n_walkers, ndim))
+def start(n_walkers: int = 8, n_ensembles: int = 4, centre=(0.0, 0.0)) -> list[np.ndarray]:
+    """Small balls of starting positions away from the mode, one per ensemble (fixed)."""
+    rng = np.random.default_rng(0)
+    return [
+        np.asarray(centre) + 0.1 * rng.standard_normal((n_walkers, 2)) for _ in range(n_ensembles)
+    ]
 
 
-CONVERGE = SamplerSettings(n_walkers=16, check_every=100, max_steps=5000, n_draws=250)
-SHORT = SamplerSettings(n_walkers=16, check_every=100, max_steps=300, n_draws=50)
-RESUME = SamplerSettings(n_walkers=12, check_every=50, max_steps=2000, n_draws=60, tau_factor=20.0)
+def run_ensemble(fn, initial, n_blobs, **kw) -> SamplerRun:
+    """``run_ensembles`` (the tests' shorthand)."""
+    return run_ensembles(fn, initial, n_blobs, **kw)
+
+
+CONVERGE = SamplerSettings(check_every=100, max_steps=5000, n_draws=250)
+SHORT = SamplerSettings(check_every=100, max_steps=300, n_draws=50)
+RESUME = SamplerSettings(n_ensembles=2, check_every=50, max_steps=2000, n_draws=60)
 RESUME_STRETCH = SamplerSettings(
-    n_walkers=12, check_every=100, max_steps=400, n_draws=60, moves="stretch"
+    n_ensembles=2, check_every=100, max_steps=400, n_draws=60, moves="stretch", min_ess=1e9
 )
 
 
@@ -73,38 +90,38 @@ def assert_same_run(a: SamplerRun, b: SamplerRun) -> None:
     np.testing.assert_array_equal(a.blobs, b.blobs)
     np.testing.assert_array_equal(a.tau, b.tau)
     np.testing.assert_array_equal(a.acceptance, b.acceptance)
-    assert (a.n_steps, a.burn, a.first, a.thin, a.converged, a.seed) == (
+    np.testing.assert_array_equal(a.burn, b.burn)
+    assert (a.n_steps, a.thin, a.converged, a.seed, a.warnings) == (
         b.n_steps,
-        b.burn,
-        b.first,
         b.thin,
         b.converged,
         b.seed,
+        b.warnings,
     )
 
 
 @pytest.fixture(scope="module")
 def converged_run() -> SamplerRun:
-    """One converged run of the Gaussian (DE moves, 16 walkers, seed 1)."""
+    """One converged run of the Gaussian (DE moves, 4 ensembles of 8 walkers, seed 1)."""
     return run_ensemble(gaussian, start(), N_BLOBS, seed=1, settings=CONVERGE)
 
 
-def test_converges_with_enough_autocorrelation_times(converged_run: SamplerRun) -> None:
-    """The run stops converged with >= 50 tau of chain after burn-in; shapes as documented."""
+def test_converges_by_all_three_criteria(converged_run: SamplerRun) -> None:
+    """The run stops converged with every criterion met; shapes as documented."""
     r = converged_run
-    assert r.converged
-    assert np.all(np.isfinite(r.tau)) and np.all(r.tau > 0)
-    assert r.n_steps - r.burn >= CONVERGE.tau_factor * np.max(r.tau)
+    assert r.converged and r.warnings == []
+    assert r.tau.shape == (4, 2) and np.all(np.isfinite(r.tau)) and np.all(r.tau > 0)
+    assert np.all(r.n_steps - r.burn >= CONVERGE.tau_factor * np.max(r.tau, axis=1))
+    assert np.all(r.rhat <= CONVERGE.max_rhat)
+    assert np.all(r.ess_bulk >= CONVERGE.min_ess) and np.all(r.ess_tail >= CONVERGE.min_ess)
     assert r.n_steps < CONVERGE.max_steps
     assert r.n_steps % CONVERGE.check_every == 0
-    assert r.burn >= np.ceil(CONVERGE.burn_factor * np.max(r.tau)) or r.burn == r.n_steps // 2
     n_draws = r.samples.shape[1]
-    assert r.samples.shape == (16, CONVERGE.n_draws, 2)
-    assert r.log_prob.shape == (16, n_draws)
-    assert r.blobs.shape == (16, n_draws, N_BLOBS)
-    assert r.first >= r.burn
-    assert r.first + r.thin * n_draws == r.n_steps
-    assert r.acceptance.shape == (16,)
+    assert r.samples.shape == (32, n_draws, 2) and n_draws <= CONVERGE.n_draws
+    assert r.log_prob.shape == (32, n_draws)
+    assert r.blobs.shape == (32, n_draws, N_BLOBS)
+    np.testing.assert_array_equal(r.ensemble_of_chain, np.repeat(np.arange(4), 8))
+    assert r.acceptance.shape == (32,)
     assert np.all((r.acceptance > 0.05) & (r.acceptance < 0.95))
     assert r.seed == 1
 
@@ -112,17 +129,72 @@ def test_converges_with_enough_autocorrelation_times(converged_run: SamplerRun) 
 def test_posterior_moments(converged_run: SamplerRun) -> None:
     """Mean and covariance of the kept draws match the Gaussian's.
 
-    The run keeps >= 50 tau after burn-in with 16 walkers, so the effective sample size
-    is >= ~800: the standard error of a mean is <= 0.035 sd, of a variance <= 5 %, of the
-    correlation <= 0.007. Tolerances are about 4 standard errors: 0.15 sd for the means,
-    20 % for the variances, 0.03 for the correlation (deterministic given the seed).
+    The run has bulk and tail ESS >= 400 for both coordinates, so the standard error of a
+    mean is <= 0.05 sd, of a variance <= 7 %, of the correlation <= 0.01. Tolerances are
+    about 3-4 standard errors: 0.2 sd for the means, 25 % for the variances, 0.04 for the
+    correlation (deterministic given the seed).
     """
     x = converged_run.samples.reshape(-1, 2)
-    assert np.all(np.abs(x.mean(axis=0) - MU) <= 0.15 * SD)
+    assert np.all(np.abs(x.mean(axis=0) - MU) <= 0.2 * SD)
     cov = np.cov(x.T)
-    np.testing.assert_allclose(np.diag(cov), SD**2, rtol=0.2)
+    np.testing.assert_allclose(np.diag(cov), SD**2, rtol=0.25)
     rho = cov[0, 1] / np.sqrt(cov[0, 0] * cov[1, 1])
-    assert rho == pytest.approx(RHO, abs=0.03)
+    assert rho == pytest.approx(RHO, abs=0.04)
+
+
+# ----------------------------------------------------------------------------------------
+# Ensembles that disagree
+# ----------------------------------------------------------------------------------------
+def two_modes(depth: float):
+    """Two narrow Gaussian modes at x0 = -5 and +5 (sd 0.3), the one at +5 ``depth`` nats
+    lower, separated by a barrier no walker crosses; blobs as for :func:`gaussian`."""
+
+    def fn(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = -0.5 * (((x[:, 0] + 5.0) / 0.3) ** 2 + (x[:, 1] / 0.3) ** 2)
+        b = -0.5 * (((x[:, 0] - 5.0) / 0.3) ** 2 + (x[:, 1] / 0.3) ** 2) - depth
+        lp = np.logaddexp(a, b)
+        return lp, np.column_stack([a, b, x[:, 0]])
+
+    return fn
+
+
+def test_an_ensemble_stuck_in_a_worse_mode_is_restarted() -> None:
+    """Three ensembles start in the main mode, one in a mode 30 nats lower.
+
+    Each ensemble alone passes the autocorrelation criterion; only R-hat across ensembles
+    sees the disagreement. The stuck one is restarted from the best ensemble's walkers, a
+    warning says so, and the kept draws all sit in the main mode.
+    """
+    initial = [*start(centre=(-5.0, 0.0))[:3], start(centre=(5.0, 0.0))[3]]
+    s = SamplerSettings(check_every=100, max_steps=3000, n_draws=100)
+    r = run_ensemble(two_modes(30.0), initial, N_BLOBS, seed=4, settings=s)
+    assert r.converged
+    assert (
+        len(r.warnings) == 1 and "restarted" in r.warnings[0] and "ensemble(s) 3" in r.warnings[0]
+    )
+    assert np.all(r.samples[..., 0] < 0.0)
+
+
+def test_equally_supported_modes_are_reported_not_pooled_as_converged() -> None:
+    """Two ensembles per mode at equal height: not converged, and the warning says the
+    ensembles disagree at comparable log-probability."""
+    initial = [*start(centre=(-5.0, 0.0))[:2], *start(centre=(5.0, 0.0))[2:]]
+    s = SamplerSettings(check_every=100, max_steps=600, n_draws=50)
+    r = run_ensemble(two_modes(0.0), initial, N_BLOBS, seed=4, settings=s)
+    assert not r.converged
+    assert any("disagree at comparable log-probability" in w for w in r.warnings)
+
+
+def test_a_mode_that_stays_stuck_is_dropped_with_a_warning() -> None:
+    """With no restarts allowed, the worse-supported ensemble is dropped from the result,
+    which is then not converged and says so."""
+    initial = [*start(centre=(-5.0, 0.0))[:3], start(centre=(5.0, 0.0))[3]]
+    s = SamplerSettings(check_every=100, max_steps=500, n_draws=50, max_restarts=0)
+    r = run_ensemble(two_modes(30.0), initial, N_BLOBS, seed=4, settings=s)
+    assert not r.converged
+    assert any("only ensembles [0, 1, 2]" in w for w in r.warnings)
+    assert set(r.ensemble_of_chain) == {0, 1, 2}
+    assert np.all(r.samples[..., 0] < 0.0)
 
 
 def test_log_prob_and_blobs_belong_to_the_draws(converged_run: SamplerRun) -> None:
@@ -146,15 +218,16 @@ def test_same_seed_bit_identical_different_seed_differs() -> None:
 
 @pytest.mark.parametrize("moves", ["de", "stretch"])
 def test_max_steps_cap(moves: str) -> None:
-    """A cap shorter than 50 tau stops the run unconverged at exactly ``max_steps``.
+    """An unreachable ESS stops the run unconverged at exactly ``max_steps``, with a
+    warning naming the shortfall.
 
     250 is not a multiple of ``check_every`` = 100, so the last chunk is a partial one.
     """
-    s = SamplerSettings(n_walkers=16, check_every=100, max_steps=250, n_draws=50, moves=moves)
+    s = SamplerSettings(check_every=100, max_steps=250, n_draws=50, moves=moves, min_ess=1e9)
     r = run_ensemble(gaussian, start(), N_BLOBS, seed=2, settings=s)
     assert not r.converged
     assert r.n_steps == 250
-    assert r.first + r.thin * r.samples.shape[1] == 250
+    assert r.warnings  # the shortfall (ESS) or the disagreement, in words
     assert np.all(np.isfinite(r.samples))
 
 
@@ -171,12 +244,12 @@ def _truncated(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def test_minus_inf_and_nan_regions_never_crash() -> None:
     """-inf and NaN log-probabilities are rejected, even for walkers that start there.
 
-    Two of the 16 walkers start in the forbidden half-plane; after burn-in every kept
+    Two walkers of one ensemble start in the forbidden half-plane; after burn-in every kept
     draw is in the allowed region with a finite log-probability and finite blobs.
     """
     initial = start()
-    initial[:2, 0] = 2.5
-    s = SamplerSettings(n_walkers=16, check_every=100, max_steps=600, n_draws=50)
+    initial[0][:2, 0] = 2.5
+    s = SamplerSettings(check_every=100, max_steps=600, n_draws=50)
     r = run_ensemble(_truncated, initial, N_BLOBS, seed=3, settings=s)
     x = r.samples.reshape(-1, 2)
     assert np.all(x[:, 0] <= 1.5)
@@ -185,17 +258,26 @@ def test_minus_inf_and_nan_regions_never_crash() -> None:
     assert np.all(np.isfinite(r.blobs))
 
 
-def test_wrong_number_of_walkers() -> None:
-    """Starting positions must match ``n_walkers``."""
+def test_bad_starting_positions() -> None:
+    """Every ensemble needs the same even number of walkers, at least twice the dimension."""
+    with pytest.raises(ValueError, match="same shape"):
+        run_ensemble(gaussian, [*start(8)[:2], start(10)[0]], N_BLOBS, seed=0, settings=SHORT)
     with pytest.raises(ValueError, match="walkers"):
-        run_ensemble(gaussian, start(10), N_BLOBS, seed=0, settings=SHORT)
+        run_ensemble(gaussian, [x[:3] for x in start()], N_BLOBS, seed=0, settings=SHORT)
+
+
+def test_walkers_for_dimension() -> None:
+    """Walkers per ensemble: the setting, raised to an even number >= 2 x ndim."""
+    assert SamplerSettings(n_walkers=8).walkers_for(3) == 8
+    assert SamplerSettings(n_walkers=8).walkers_for(5) == 10
+    assert SamplerSettings(n_walkers=6).walkers_for(2) == 6
 
 
 def test_single_blob_keeps_its_axis() -> None:
     """``blobs`` has shape (n_walkers, n_draws, m) also for m = 1 (a single jump).
 
     A volume fraction (or a command in ``compare_commands``) with one measured jump has
-    ``m = 1``; emcee squeezes length-1 blob axes, and ``run_ensemble`` returns
+    ``m = 1``; emcee squeezes length-1 blob axes, and ``run_ensembles`` returns
     ``(n_walkers, n_draws)``, which the fit cannot place into its (chain, draw, jump)
     log-likelihood array.
     """
@@ -205,7 +287,7 @@ def test_single_blob_keeps_its_axis() -> None:
         return lp, blobs[:, :1]
 
     r = run_ensemble(one, start(), 1, seed=0, settings=SHORT)
-    assert r.blobs.shape == (16, r.samples.shape[1], 1)
+    assert r.blobs.shape == (32, r.samples.shape[1], 1)
 
 
 # ----------------------------------------------------------------------------------------
@@ -216,19 +298,21 @@ def test_single_blob_keeps_its_axis() -> None:
 @pytest.fixture(scope="module")
 def resume_reference() -> SamplerRun:
     """The uninterrupted run (no backend) that every resumed DE run must reproduce."""
-    return run_ensemble(gaussian, start(12), N_BLOBS, seed=5, settings=RESUME)
+    return run_ensemble(gaussian, start(n_ensembles=2), N_BLOBS, seed=5, settings=RESUME)
 
 
-# The initial state costs one call; a step of the stretch move two (one per half of the
-# ensemble), of the DE move two or four (the snooker move splits the ensemble in four).
-# With the stretch move, call 2 s + 2 is therefore the first call of step s + 1.
+# Per ensemble, the initial state costs one call; a step of the stretch move two (one per
+# half of the ensemble), of the DE move two or four (the snooker move splits the ensemble
+# in four). Ensembles advance chunk by chunk, one after the other: with two stretch
+# ensembles and chunks of 100 steps, a chunk costs 2 x (2 x 100 + 1) calls, so call 405
+# is the first of the second chunk.
 @pytest.mark.parametrize(
     ("moves", "interrupts", "min_stored"),
     [
-        pytest.param("de", (151,), (50,), id="de-in-the-second-chunk"),
+        pytest.param("de", (350,), (50,), id="de-in-a-later-chunk"),
         pytest.param("de", (1,), (0,), id="de-at-the-first-call"),
-        pytest.param("de", (200, 150), (50, 100), id="de-twice"),
-        pytest.param("stretch", (2 * 100 + 2,), (100,), id="stretch-right-after-a-check"),
+        pytest.param("de", (500, 300), (50, 100), id="de-twice"),
+        pytest.param("stretch", (405,), (100,), id="stretch-right-after-a-check"),
     ],
 )
 def test_resume_is_bit_identical(
@@ -251,14 +335,14 @@ def test_resume_is_bit_identical(
         reference = resume_reference
         assert reference.converged
     else:
-        reference = run_ensemble(gaussian, start(12), N_BLOBS, seed=5, settings=settings)
+        reference = run_ensemble(gaussian, start(n_ensembles=2), N_BLOBS, seed=5, settings=settings)
     h5 = tmp_path / "chains.h5"
     stored = []
     for i, at in enumerate(interrupts):
         with pytest.raises(KeyboardInterrupt):
             run_ensemble(
                 Counting(interrupt_at=at),
-                start(12),
+                start(n_ensembles=2),
                 N_BLOBS,
                 seed=5,
                 settings=settings,
@@ -266,12 +350,12 @@ def test_resume_is_bit_identical(
                 resume=i > 0,
             )
         saved = load_checkpoint(h5)
-        stored.append(0 if saved is None else saved.iteration)
+        stored.append(0 if saved is None else saved.backends[0][0].iteration)
     assert all(n >= m for n, m in zip(stored, min_stored, strict=True)), stored
     assert stored == sorted(stored)
     # 'initial' is ignored once a chunk is stored (the stored last positions are used);
     # a run interrupted before its first checkpoint starts afresh from 'initial'
-    initial = np.zeros((12, 2)) if stored[-1] > 0 else start(12)
+    initial = [np.zeros((8, 2))] * 2 if stored[-1] > 0 else start(n_ensembles=2)
     resumed = run_ensemble(
         gaussian, initial, N_BLOBS, seed=5, settings=settings, checkpoint=h5, resume=True
     )
@@ -281,13 +365,47 @@ def test_resume_is_bit_identical(
 def test_resume_finished_run_and_reset(tmp_path: Path, resume_reference: SamplerRun) -> None:
     """Resuming a finished run does no new work; without ``resume`` it starts afresh."""
     h5 = tmp_path / "chains.h5"
-    first = run_ensemble(gaussian, start(12), N_BLOBS, seed=5, settings=RESUME, checkpoint=h5)
+    x0 = start(n_ensembles=2)
+    first = run_ensemble(gaussian, x0, N_BLOBS, seed=5, settings=RESUME, checkpoint=h5)
     assert_same_run(first, resume_reference)
     fn = Counting()
-    again = run_ensemble(
-        fn, start(12), N_BLOBS, seed=5, settings=RESUME, checkpoint=h5, resume=True
-    )
+    again = run_ensemble(fn, x0, N_BLOBS, seed=5, settings=RESUME, checkpoint=h5, resume=True)
     assert fn.calls == 0
     assert_same_run(again, resume_reference)
-    fresh = run_ensemble(gaussian, start(12), N_BLOBS, seed=5, settings=RESUME, checkpoint=h5)
+    fresh = run_ensemble(gaussian, x0, N_BLOBS, seed=5, settings=RESUME, checkpoint=h5)
     assert_same_run(fresh, resume_reference)
+
+
+def test_resume_with_another_fingerprint_is_refused(tmp_path: Path) -> None:
+    """A checkpoint made for another problem cannot be resumed."""
+    h5 = tmp_path / "chains.h5"
+    s = SamplerSettings(n_ensembles=2, check_every=50, max_steps=100, n_draws=10)
+    x0 = start(n_ensembles=2)
+    run_ensemble(gaussian, x0, N_BLOBS, seed=1, settings=s, checkpoint=h5, fingerprint="a")
+    with pytest.raises(CheckpointMismatchError, match="other data or settings"):
+        run_ensemble(
+            gaussian, x0, N_BLOBS, seed=1, settings=s, checkpoint=h5, resume=True, fingerprint="b"
+        )
+
+
+def test_restarts_survive_a_resume(tmp_path: Path) -> None:
+    """A run interrupted after restarting a stuck ensemble resumes bit-identically."""
+    initial = [*start(centre=(-5.0, 0.0))[:3], start(centre=(5.0, 0.0))[3]]
+    s = SamplerSettings(check_every=100, max_steps=3000, n_draws=100)
+    counted = Counting(two_modes(30.0))
+    reference = run_ensemble(counted, initial, N_BLOBS, seed=4, settings=s)
+    assert reference.warnings  # the restart happened
+    h5 = tmp_path / "chains.h5"
+    with pytest.raises(KeyboardInterrupt):  # in the last chunks, after the restart
+        run_ensemble(
+            Counting(two_modes(30.0), interrupt_at=int(0.9 * counted.calls)),
+            initial,
+            N_BLOBS,
+            seed=4,
+            settings=s,
+            checkpoint=h5,
+        )
+    resumed = run_ensemble(
+        two_modes(30.0), initial, N_BLOBS, seed=4, settings=s, checkpoint=h5, resume=True
+    )
+    assert_same_run(resumed, reference)
