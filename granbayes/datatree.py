@@ -129,10 +129,16 @@ def build_datatree(
             if name in ds:
                 ds[name].attrs.update(var_attr)
         dt[group] = ds
-    dt.attrs.update(
-        {k: (v if isinstance(v, str | int | float) else json.dumps(v)) for k, v in attrs.items()}
-    )
+    dt.attrs.update({k: _attr(v) for k, v in attrs.items()})
     return dt
+
+
+def _attr(value: object) -> object:
+    """A netCDF-storable attribute: strings and numbers as they are, the rest (booleans,
+    lists, mappings) as JSON text."""
+    if isinstance(value, str | int | float) and not isinstance(value, bool):
+        return value
+    return json.dumps(value)
 
 
 def run_diagnostics(dt: xr.DataTree) -> pd.DataFrame:
