@@ -10,7 +10,7 @@ b. **Mixed workload.** N jumps (default 5000), the five commands equally, force 
    timed runs after a warm-up), per command, accuracy against
    ``SolverOptions.converged()`` and the two-thread throughput.
 c. **solve_ivp comparison.** A subset of the same jumps with the plain
-   ``scipy.integrate.solve_ivp`` implementation of ``benchmarks/scipy_model.py`` and with
+   ``scipy.integrate.solve_ivp`` implementation of ``granbayes.testing`` and with
    granbayes, timed in the same run.
 d. **Memory.** Peak resident memory of a 100,000-jump batch (in a fresh process).
 
@@ -53,11 +53,9 @@ from granbayes.commands import CommandProgram, build_command
 from granbayes.experiment import COMMAND_NAMES, Robot
 from granbayes.forces import typical_ranges
 from granbayes.simulator import SolverOptions, Status, build_rows, simulate_rows
+from granbayes.testing import simulate_height_scipy
 
 BENCH_DIR = Path(__file__).resolve().parent
-sys.path.insert(0, str(BENCH_DIR))
-from scipy_model import simulate_height_scipy  # noqa: E402
-
 RESULTS_DIR = BENCH_DIR / "results"
 
 #: Realistic ranges of the force parameters [SI] (uniform draws).
@@ -552,7 +550,7 @@ def render_markdown(results: dict) -> str:
     add(
         f"The first {s['per_command']} jumps of each command of the workload ({s['n_jumps']} "
         "jumps), timed one by one with the plain `scipy.integrate.solve_ivp` implementation "
-        "(`benchmarks/scipy_model.py`: Python right-hand side, terminal events for the regime "
+        "(`granbayes.testing`: Python right-hand side, terminal events for the regime "
         "changes, `max_step` 0.01 s as in granbayes) and with granbayes, in the same run. "
         "Errors against `SolverOptions.converged()`."
     )

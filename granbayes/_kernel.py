@@ -73,9 +73,12 @@ MODE_NAMES = ("advancing", "contact", "free")
 START_TOUCHING = 0
 START_SETTLED = 1
 
-# trajectory record columns
+# trajectory record columns; ``unloading_slope`` [N/m] is the slope r_unload F_yield'(z_max)
+# of the unloading line from the recorded crater depth ``z_max`` (while advancing, the line
+# the bed would follow if the foot stopped there, before any compaction re-anchoring), so
+# that the bed's stored elastic energy is F^2 / (2 unloading_slope)
 REC_FIELDS = ("t", "x_rod", "x_foot", "v_rod", "v_foot", "z_max", "ground_force",
-              "added_mass", "mode", "alpha")  # fmt: skip
+              "added_mass", "mode", "alpha", "unloading_slope")  # fmt: skip
 REC_SIZE = len(REC_FIELDS)
 
 G = 9.81
@@ -475,6 +478,7 @@ def _set_segment(c, si, nseg, seg):
 
 @njit(cache=True)
 def _record(rec, n, t, y, mode, c):
+    """Write one ``REC_FIELDS`` row of state ``y`` at time ``t`` to ``rec[n]``."""
     if n >= rec.shape[0]:
         return n
     z = -y[1]
@@ -484,11 +488,14 @@ def _record(rec, n, t, y, mode, c):
     rec[n, 2] = y[1]
     rec[n, 3] = y[2]
     rec[n, 4] = y[3]
-    rec[n, 5] = max(z, c[_C_ZMAX]) if mode == MODE_ADVANCING else c[_C_ZMAX]
+    advancing = mode == MODE_ADVANCING
+    zmax = max(z, c[_C_ZMAX]) if advancing else c[_C_ZMAX]
+    rec[n, 5] = zmax
     rec[n, 6] = max(fg, 0.0)
     rec[n, 7] = ma
     rec[n, 8] = mode
     rec[n, 9] = c[_C_SEGCOEF] * math.cos(c[_C_OMEGA] * (t - c[_C_SEGT0])) + c[_C_SEGOFF]
+    rec[n, 10] = c[_C_R] * _yield_slope(zmax, c) if advancing else c[_C_SUNL]
     return n + 1
 
 

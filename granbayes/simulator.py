@@ -149,7 +149,11 @@ class Trajectory:
         One row per accepted integrator step and event: ``t_s``, ``x_rod_mm``,
         ``x_foot_mm``, ``v_rod_m_s``, ``v_foot_m_s``, ``depth_mm`` (``z = -x_foot``),
         ``z_max_mm`` (crater depth), ``ground_force_N``, ``added_mass_kg``, ``mode``
-        (``advancing``, ``contact``, ``free``) and ``alpha_mm`` (actuator position).
+        (``advancing``, ``contact``, ``free``), ``alpha_mm`` (actuator position) and
+        ``unloading_slope_N_m``: the slope ``r_unload F_yield'(z_max)`` of the bed's elastic
+        unloading line from the recorded crater depth (while advancing, the line the bed
+        would follow if the foot stopped there, before a ``compaction`` re-anchoring). On
+        the unloading line the bed stores the elastic energy ``F_g^2 / (2 slope)``.
     height_mm : float
         Jump height [mm].
     status : Status
@@ -442,6 +446,7 @@ def simulate_trajectory(
             "added_mass_kg": r[:, 7],
             "mode": np.array(_kernel.MODE_NAMES)[r[:, 8].astype(int)],
             "alpha_mm": r[:, 9] * 1e3,
+            "unloading_slope_N_m": r[:, 10],
         }
     )
     return Trajectory(data=data, height_mm=height * 1e3, status=Status(status), program=program)

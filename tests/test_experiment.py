@@ -541,9 +541,16 @@ def test_batch_minimal_and_empty_cells(tmp_path: Path) -> None:
 
 
 def test_batch_zero_force_parameters_allowed(tmp_path: Path) -> None:
-    text = "command,phi,k,c_d,kappa,k2,b\nstutter,0.6,0,0,0,0,0\n"
+    text = "command,phi,k,c_d,kappa,k2,b,c_comp\nstutter,0.6,0,0,0,0,0,0\n"
     table = load_batch_table(write(tmp_path / "in.csv", text))
-    assert (table.loc[0, ["k", "c_d", "kappa", "k2", "b"]] == 0.0).all()
+    assert (table.loc[0, ["k", "c_d", "kappa", "k2", "b", "c_comp"]] == 0.0).all()
+
+
+def test_batch_r_unload_one_allowed(tmp_path: Path) -> None:
+    """r_unload = 1 (the perfectly elastic bed) is the smallest allowed value."""
+    text = "command,phi,k,r_unload\nsingle,0.6,3000,1\nsingle,0.6,3000,1.0\n"
+    table = load_batch_table(write(tmp_path / "in.csv", text))
+    assert table["r_unload"].tolist() == [1.0, 1.0]
 
 
 @pytest.mark.parametrize(
@@ -552,7 +559,8 @@ def test_batch_zero_force_parameters_allowed(tmp_path: Path) -> None:
         ("k", "-1", ">= 0"),
         ("c_d", "abc", "expected a number"),
         ("kappa", "inf", "finite"),
-        ("r_unload", "0", "> 0"),
+        ("r_unload", "0", ">= 1"),
+        ("r_unload", "0.5", ">= 1"),
         ("k2", "-0.1", ">= 0"),
         ("b", "nan", "finite"),
         ("m_motor", "0", "> 0"),

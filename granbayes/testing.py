@@ -1,10 +1,15 @@
-"""A plain ``scipy.integrate.solve_ivp`` implementation of the jumping-robot model.
+"""Test kit: an independent ``scipy.integrate.solve_ivp`` oracle of the jumping-robot model.
 
-This is an independent cross-check of the compiled integrator in ``granbayes``: it follows
-``physics-model.md`` directly, with a Python right-hand side and solve_ivp's own event
-machinery, and it is written for clarity rather than speed. It shares nothing with the
-compiled integrator except the command waveforms (``granbayes.commands.build_command``)
-and the robot/settings containers (``granbayes.experiment``).
+This module is public so that tests, benchmarks and other implementations of the model can
+check themselves against one reference (like ``arviz_base.testing``). It is not imported by
+``granbayes`` itself.
+
+:func:`simulate_height_scipy` follows ``docs/physics-model.md`` directly, with a Python
+right-hand side and solve_ivp's own event machinery, and it is written for clarity rather
+than speed. It shares nothing with the compiled integrator (``granbayes._kernel``) except
+the command waveforms (:func:`granbayes.commands.build_command`), the robot/settings
+containers (:mod:`granbayes.experiment`) and the parameter bounds of the force-term
+registry (:mod:`granbayes.forces`); its only numerical dependency is scipy.
 
 How the non-smooth model is integrated
 --------------------------------------
@@ -16,8 +21,8 @@ How the non-smooth model is integrated
   solve_ivp is restarted from the event state:
 
   - advancing -> contact/free when ``z'`` crosses 0 downward (the crater bottom ``z_max``
-    is set to the current depth and the added-mass cone is shed; the first time, the bed
-    below is compacted if the ``compaction`` term is on);
+    is set to the current depth, the added-mass cone is shed and, with the ``compaction``
+    term, the loading curve below is re-anchored there);
   - contact -> advancing when ``z`` reaches ``z_max`` (a new added-mass episode starts);
   - contact -> free when the unloading force reaches 0;
   - free -> contact (or advancing, for an empty crater) when the foot comes back down to
@@ -38,6 +43,7 @@ How the non-smooth model is integrated
 
 Examples
 --------
+>>> from granbayes.testing import simulate_height_scipy
 >>> round(simulate_height_scipy("single", 0.612, {"k": 3000.0, "r_unload": 1.0}), 1)
 67.7
 """
@@ -52,18 +58,23 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import OptimizeResult, brentq
 
-from granbayes.commands import CommandProgram, build_command
-from granbayes.experiment import Experiment
+from .commands import CommandProgram, build_command
+from .experiment import Experiment
+from .forces import PARAMETERS
 
-__all__ = ["simulate_height_scipy"]
+__all__ = ["COMPACTION_LENGTH", "PARAMETER_DEFAULTS", "simulate_height_scipy"]
 
 #: Gravitational acceleration [m/s^2].
 G = 9.81
 #: Geometry of the jammed cone (Aguilar & Goldman 2016): tan(theta), theta = 60 deg, and mu.
 CONE_TAN = math.tan(math.radians(60.0))
 CONE_MU = 2.0
+#: Grain-scale compaction length l_c [m] of the ``compaction`` term (physics-model.md s. 8).
+COMPACTION_LENGTH = 1e-3
 
-#: Values of the force parameters that are not given (term switched off; default bed).
+#: Values of the force parameters that are not given (term switched off; default bed). Kept
+#: here rather than read from the registry, so that a term added to :mod:`granbayes.forces`
+#: but not to this oracle is refused (``KeyError``) instead of silently ignored.
 PARAMETER_DEFAULTS: dict[str, float] = {
     "c_d": 0.0,
     "kappa": 0.0,
@@ -97,10 +108,6 @@ class _Constants:
     def static_strength(self, z: float) -> float:
         """Yield force ``F_static(z) = k z + k2 z^2`` of the fresh bed at depth ``z`` [N]."""
         return self.k * z + self.k2 * z * z
-
-
-#: Grain-scale compaction length l_c [m] of the ``compaction`` term (physics-model.md s. 8).
-COMPACTION_LENGTH = 1e-3
 
 
 @dataclass
@@ -143,9 +150,7 @@ class _Bed:
 
     def unloading_force(self, z: float, const: _Constants) -> float:
         """Force on the elastic unloading line at depth ``z`` (may be negative) [N]."""
-        return self.yield_force(self.z_max, const) - self.unloading_slope(const) * (
-            self.z_max - z
-        )
+        return self.yield_force(self.z_max, const) - self.unloading_slope(const) * (self.z_max - z)
 
     def release_depth(self, const: _Constants) -> float:
         """Depth at which the unloading line reaches zero force [m]."""
@@ -254,7 +259,7 @@ def _watches(
         return [_Watch("stop", lambda t, y: y[3], lambda t, y: -rhs(t, y)[3], 1e-11, 1e-9)]
     if mode == CONTACT:
         z_max = bed.z_max
-        z_release = bed.release_depth(const)  # unloading force = r k (z - z_release)
+        z_release = bed.release_depth(const)  # the unloading force is 0 there
         return [
             _Watch("reach_bottom", lambda t, y: -y[1] - z_max, lambda t, y: y[3], 1e-13, 1e-11),
             _Watch("release", lambda t, y: y[1] + z_release, lambda t, y: -y[3], 1e-13, 1e-11),
@@ -314,12 +319,27 @@ def _switch(event: str, y: np.ndarray, bed: _Bed, const: _Constants) -> str:
 
 
 def _constants(phi: float, params: Mapping[str, float], experiment: Experiment) -> _Constants:
+    """Jump constants from phi, the force parameters and the experiment.
+
+    Raises
+    ------
+    KeyError
+        For a parameter this oracle does not implement.
+    ValueError
+        If ``k`` is missing or a parameter is outside its allowed range (the bounds of
+        :mod:`granbayes.forces`, e.g. ``r_unload >= 1``), where the compiled simulator
+        returns ``Status.BAD_INPUT``.
+    """
     unknown = set(params) - {"k", *PARAMETER_DEFAULTS}
     if unknown:
         raise KeyError(f"unknown force parameter(s): {sorted(unknown)}")
     if "k" not in params:
         raise ValueError("parameter 'k' is required")
     p = {**PARAMETER_DEFAULTS, **{name: float(v) for name, v in params.items()}}
+    for parameter in PARAMETERS:
+        problem = parameter.check(p[parameter.name])
+        if problem:
+            raise ValueError(problem)
     robot = experiment.robot
     return _Constants(
         m_upper=robot.m_motor + robot.m_rod,
@@ -398,6 +418,28 @@ def simulate_height_scipy(
     -------
     float
         Jump height [mm] (physics-model.md section 5).
+
+    Raises
+    ------
+    KeyError
+        For an unknown force parameter.
+    ValueError
+        If ``k`` is missing or a parameter is outside its allowed range (e.g. ``r_unload <
+        1``; the compiled simulator returns ``Status.BAD_INPUT`` for such a jump).
+    RuntimeError
+        If solve_ivp fails.
+
+    Examples
+    --------
+    A perfectly elastic bed, and an unloading line less steep than the loading curve:
+
+    >>> from granbayes.testing import simulate_height_scipy
+    >>> round(simulate_height_scipy("single", 0.612, {"k": 3000.0, "r_unload": 1.0}), 1)
+    67.7
+    >>> simulate_height_scipy("single", 0.612, {"k": 3000.0, "r_unload": 0.5})
+    Traceback (most recent call last):
+    ...
+    ValueError: r_unload must be >= 1 [-], got 0.5
     """
     exp = experiment if experiment is not None else Experiment()
     program = build_command(command, exp.command)
