@@ -334,7 +334,7 @@ def _connect(
             n_workers=workers,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=None,
+            dashboard_address="127.0.0.1:0",
             env=env,
         ) as cluster,
         Client(cluster, set_as_default=False) as client,
