@@ -143,9 +143,7 @@ class _Bed:
 
     def unloading_force(self, z: float, const: _Constants) -> float:
         """Force on the elastic unloading line at depth ``z`` (may be negative) [N]."""
-        return self.yield_force(self.z_max, const) - self.unloading_slope(const) * (
-            self.z_max - z
-        )
+        return self.yield_force(self.z_max, const) - self.unloading_slope(const) * (self.z_max - z)
 
     def release_depth(self, const: _Constants) -> float:
         """Depth at which the unloading line reaches zero force [m]."""

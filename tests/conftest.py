@@ -19,6 +19,7 @@ settings.register_profile(
 settings.register_profile("thorough", deadline=None, max_examples=500, database=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "granbayes"))
 
+
 def pytest_configure(config):
     """Under pytest-xdist, one numba thread per worker (2 workers x 2 threads on 2 cores
     oversubscribe the machine); tests that ask for more threads explicitly still get them,
