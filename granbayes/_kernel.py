@@ -10,6 +10,11 @@ events, so every non-smooth point of physics-model.md is an event the integrator
   reaches zero force), free -> contact;
 * the jump apex (``x_f' = 0`` inside the height window, no restart) and touchdown.
 
+Where the foot is not advancing (elastic contact on the unloading line, or no ground force)
+the robot is a linear 2-DOF system with constant or sinusoidal forcing; there the steps
+are its exact closed form (modal decomposition per regime, ``_lin_prepare``), sized only to
+bracket the events, unless ``OPT_CLOSED`` is 0 or the regime has no closed form.
+
 Events are located on the step's cubic Hermite interpolant and then refined with real
 Runge-Kutta steps from the step start (safeguarded Newton in a bracket), so the state after
 an event is a genuine 5th-order solution. The integrator never raises: each jump returns a
@@ -22,6 +27,7 @@ parameters in ``forces.PARAMETER_NAMES`` order); a command table per command (se
 
 from __future__ import annotations
 
+import cmath
 import math
 
 import numpy as np
@@ -54,8 +60,8 @@ _P_K2 = ROW_FORCE0 + PARAMETER_NAMES.index("k2")
 _P_B = ROW_FORCE0 + PARAMETER_NAMES.index("b")
 _P_COMP = ROW_FORCE0 + PARAMETER_NAMES.index("c_comp")
 
-OPT_RTOL, OPT_ATOL_X, OPT_ATOL_V, OPT_HMAX, OPT_MAX_STEPS, OPT_T_AFTER = range(6)
-OPT_SIZE = 6
+OPT_RTOL, OPT_ATOL_X, OPT_ATOL_V, OPT_HMAX, OPT_MAX_STEPS, OPT_T_AFTER, OPT_CLOSED = range(7)
+OPT_SIZE = 7
 
 STATUS_OK = 0
 STATUS_NONFINITE = 1
@@ -92,12 +98,21 @@ _C_K, _C_CD, _C_AM, _C_R, _C_K2, _C_B = 5, 6, 7, 8, 9, 10
 _C_RAD, _C_HFULL, _C_OMEGA, _C_SEGCOEF, _C_SEGT0, _C_SEGOFF = 11, 12, 13, 14, 15, 16
 _C_ZMAX, _C_ZENTRY, _C_ZFREE, _C_FSMAX = 17, 18, 19, 20
 _C_COMP, _C_ZC, _C_FC, _C_MULT, _C_FSC, _C_SUNL = 21, 22, 23, 24, 25, 26
-_C_SIZE = 27
+# closed form of the linear regimes (see _lin_prepare): flag, fastest frequency, number of
+# oscillatory mode pairs, centre-of-mass forcing, then per mode pair _MODAL_SIZE numbers
+_C_LIN, _C_LINW, _C_NMODE, _C_COMK = 27, 28, 29, 30
+_C_MODAL = 31
+_MODAL_SIZE = 14
+_C_SIZE = _C_MODAL + 2 * _MODAL_SIZE
 
 #: Grain-scale compaction length l_c [m] of the ``compaction`` term: the depth of intrusion
 #: over which a loose bed approaches its compacted state (about one poppy-seed diameter;
 #: docs/physics-model.md section 8).
 COMPACTION_LENGTH = 1e-3
+
+#: Step of the closed form in the linear regimes, in radians of the fastest mode (or of the
+#: actuator) at rtol = 1e-5: the states are exact, the steps only bracket the events.
+LIN_THETA = 0.8
 
 # events (each is g(y) crossing from <= 0 to > 0)
 _EV_NONE = -1
@@ -284,6 +299,159 @@ def _dopri_step(t, y, f, h, mode, c, tol):
 
 
 # ----------------------------------------------------------------------------------------
+# closed form of the linear regimes. Not advancing (contact on the unloading line, or free)
+# the robot is a linear 2-DOF system, mass diag(M, m_f), damping c_s [[1, -1], [-1, 1]],
+# stiffness k_s [[1, -1], [-1, 1]] + diag(0, s_b) (s_b = unloading slope in contact, 0
+# free), forced by gravity, the constant part of the unloading line and the actuator's
+# m_motor coef w^2 cos(w (t - t0)) on the rod. Its motion is a sum of complex modes
+# (eigenvalue lam, shape phi, left eigenvector [phi^T (lam M + C), phi^T M]) plus, when
+# free, the centre of mass in free fall; the steps are exact and only resolve the events.
+@njit(cache=True)
+def _newton_root(a4, a3, a2, a1, a0, s):
+    """Root of the quartic sum a_k s^k by Newton from ``s``; (root, converged)."""
+    for _ in range(60):
+        p = (((a4 * s + a3) * s + a2) * s + a1) * s + a0
+        dp = ((4.0 * a4 * s + 3.0 * a3) * s + 2.0 * a2) * s + a1
+        if dp == 0.0:
+            return s, False
+        ds = p / dp
+        s -= ds
+        if abs(ds) <= 1e-15 * abs(s):
+            break
+    r = abs(s)
+    scale = (((a4 * r + abs(a3)) * r + a2) * r + a1) * r + a0
+    p = (((a4 * s + a3) * s + a2) * s + a1) * s + a0
+    return s, abs(p) <= 1e-11 * scale and s.imag > 0.0
+
+
+@njit(cache=True)
+def _lin_prepare(mode, c):
+    """Modal data of the current regime and actuator segment; ``c[_C_LIN] = 0`` if none.
+
+    No closed form (numerical steps instead) while advancing, for an overdamped mode or
+    nearly coincident modes, or near an undamped resonance with the actuator.
+    """
+    c[_C_LIN] = 0.0
+    if mode == MODE_ADVANCING:
+        return
+    mu, mf, ks, cs = c[_C_M], c[_C_MF], c[_C_KS], c[_C_CS]
+    w, coef = c[_C_OMEGA], c[_C_SEGCOEF]
+    fmot = c[_C_MMOT] * coef * w * w  # force amplitude of the actuator on the rod
+    lam1 = 0j
+    lam2 = 0j
+    if mode == MODE_FREE:
+        nm = 1
+        fc = 0.0
+        mr = mu * mf / (mu + mf)
+        disc = cs * cs - 4.0 * mr * ks
+        if disc >= 0.0:
+            return
+        lam1 = complex(-cs / (2.0 * mr), math.sqrt(-disc) / (2.0 * mr))
+        c[_C_COMK] = c[_C_MMOT] * coef / (mu + mf)
+    else:
+        nm = 2
+        sb = c[_C_SUNL]
+        fc = c[_C_FSMAX] - sb * c[_C_ZMAX]
+        a4, a3, a2, a1, a0 = mu * mf, cs * (mu + mf), mu * (ks + sb) + mf * ks, cs * sb, ks * sb
+        disc = a2 * a2 - 4.0 * a4 * a0
+        if disc <= 0.0 or a0 <= 0.0:
+            return
+        om_hi = (a2 + math.sqrt(disc)) / (2.0 * a4)  # undamped squared frequencies
+        om_lo = a0 / (a4 * om_hi)
+        lam1, ok1 = _newton_root(a4, a3, a2, a1, a0, complex(0.0, math.sqrt(om_lo)))
+        lam2, ok2 = _newton_root(a4, a3, a2, a1, a0, complex(0.0, math.sqrt(om_hi)))
+        if not (ok1 and ok2) or abs(lam1 - lam2) <= 1e-6 * abs(lam2):
+            return
+    wmax = w if coef != 0.0 else 0.0
+    for j in range(nm):
+        lam = lam1 if j == 0 else lam2
+        pr = cs * lam + ks
+        pf = mu * lam * lam + cs * lam + ks
+        n = 2.0 * lam * (mu * pr * pr + mf * pf * pf) + cs * (pr - pf) ** 2
+        if n == 0.0:
+            return
+        ninv = 1.0 / n
+        # free: gravity does not excite the oscillation (phi^T M (1, 1) = 0)
+        beta = 0j if mode == MODE_FREE else (pr * (-mu * G) + pf * (fc - mf * G)) * ninv
+        pc = 0j
+        ps = 0j
+        if coef != 0.0:
+            den = lam * lam + w * w
+            if abs(den) < 1e-8 * w * w:
+                return
+            delta = pr * fmot * ninv
+            pc = -delta * lam / den
+            ps = delta * w / den
+        b = _C_MODAL + j * _MODAL_SIZE
+        p0 = -beta / lam
+        for i, v in enumerate((lam, pr, pf, ninv, p0, pc, ps)):
+            c[b + 2 * i] = v.real
+            c[b + 2 * i + 1] = v.imag
+        wmax = max(wmax, abs(lam))
+    c[_C_NMODE] = nm
+    c[_C_LINW] = wmax
+    c[_C_LIN] = 1.0
+
+
+@njit(cache=True)
+def _lin_step(t, y, tau, c):
+    """Exact state at ``t + tau`` from state ``y`` at ``t`` in a linear regime."""
+    xr, xf, vr, vf = y
+    mu, mf, cs = c[_C_M], c[_C_MF], c[_C_CS]
+    w, coef = c[_C_OMEGA], c[_C_SEGCOEF]
+    forced = coef != 0.0
+    c0 = s0 = c1 = s1 = 0.0
+    if forced:
+        th0 = w * (t - c[_C_SEGT0])
+        th1 = w * (t + tau - c[_C_SEGT0])
+        c0, s0, c1, s1 = math.cos(th0), math.sin(th0), math.cos(th1), math.sin(th1)
+    nm = int(c[_C_NMODE])
+    nxr = nxf = nvr = nvf = 0.0
+    if nm == 1:  # free: the centre of mass falls freely, pushed by the actuator
+        mt = mu + mf
+        x0 = (mu * xr + mf * xf) / mt
+        v0 = (mu * vr + mf * vf) / mt
+        xc = x0 + v0 * tau - 0.5 * G * tau * tau
+        vc = v0 - G * tau
+        if forced:
+            kap = c[_C_COMK]
+            xc += kap * (c0 - c1 - w * s0 * tau)
+            vc += kap * w * (s1 - s0)
+        nxr = nxf = xc
+        nvr = nvf = vc
+    for j in range(nm):
+        b = _C_MODAL + j * _MODAL_SIZE
+        lam = complex(c[b], c[b + 1])
+        pr = complex(c[b + 2], c[b + 3])
+        pf = complex(c[b + 4], c[b + 5])
+        ninv = complex(c[b + 6], c[b + 7])
+        q0 = (pr * ((lam * mu + cs) * xr - cs * xf + mu * vr)
+              + pf * ((lam * mf + cs) * xf - cs * xr + mf * vf)) * ninv  # fmt: skip
+        qp0 = qp1 = complex(c[b + 8], c[b + 9])
+        if forced:
+            pc = complex(c[b + 10], c[b + 11])
+            ps = complex(c[b + 12], c[b + 13])
+            qp0 += pc * c0 + ps * s0
+            qp1 += pc * c1 + ps * s1
+        q = cmath.exp(lam * tau) * (q0 - qp0) + qp1
+        lq = lam * q
+        nxr += 2.0 * (pr * q).real
+        nxf += 2.0 * (pf * q).real
+        nvr += 2.0 * (pr * lq).real
+        nvf += 2.0 * (pf * lq).real
+    return (nxr, nxf, nvr, nvf)
+
+
+@njit(cache=True)
+def _step(t, y, f, h, mode, c, tol):
+    """A step of size h: exact in a linear regime (error 0), else Dormand-Prince."""
+    if c[_C_LIN] != 0.0:
+        y1 = _lin_step(t, y, h, c)
+        return y1, _accel(t + h, y1[0], y1[1], y1[2], y1[3], mode, c), 0.0
+    return _dopri_step(t, y, f, h, mode, c, tol)
+
+
+# ----------------------------------------------------------------------------------------
 # events
 @njit(cache=True)
 def _g(kind, y, c):
@@ -364,7 +532,7 @@ def _glance(kind, t, y0, f0, y1, f1, h, mode, c, tol):
     if not (0.0 < th < 1.0) or _hermite(th, g0, g1, d0, d1) <= -_gtol(kind, c):
         return -1.0, y1, f1, g1
     s = th * h
-    ym, fm, _ = _dopri_step(t, y0, f0, s, mode, c, tol)
+    ym, fm, _ = _step(t, y0, f0, s, mode, c, tol)
     gm = _g(kind, ym, c)
     if gm > 0.0:
         return s, ym, fm, gm
@@ -408,7 +576,7 @@ def _locate(kind, t, y0, f0, y1, f1, h, mode, c, tol):
     for _ in range(80):
         if not (lo < s < hi):
             s = 0.5 * (lo + hi)
-        ys, fs, _ = _dopri_step(t, y0, f0, s, mode, c, tol)
+        ys, fs, _ = _step(t, y0, f0, s, mode, c, tol)
         gs = _g(kind, ys, c)
         gd = _gdot(kind, ys, fs, c)
         if gs > 0.0:
@@ -602,6 +770,12 @@ def simulate_one(row, seg, meta, opts, rec, record):
     if f[1] >= 0.0:
         mode = MODE_CONTACT if c[_C_FSMAX] > 0.0 else MODE_FREE
         f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
+    closed = opts[OPT_CLOSED] != 0.0
+    if closed:
+        _lin_prepare(mode, c)
+    # steps of the closed form resolve the events: a fraction of the fastest period,
+    # shrinking with the tolerance as Dormand-Prince steps would
+    lin_theta = LIN_THETA * min(1.0, tol[0] / 1e-5) ** 0.2
 
     n_rec = _record(rec, 0, t, y, mode, c) if record else 0
     in_window = push == 0
@@ -613,9 +787,11 @@ def simulate_one(row, seg, meta, opts, rec, record):
             return np.nan, STATUS_STEP_LIMIT, n_steps, n_rec
         t_stop = seg[si, 0] if si < nseg else t_final
         remaining = t_stop - t
-        landing = h >= remaining * (1.0 - 1e-12)
-        h_try = remaining if landing else h
-        y1, f1, err = _dopri_step(t, y, f, h_try, mode, c, tol)
+        lin = c[_C_LIN] != 0.0
+        h_next = min(lin_theta / c[_C_LINW], hmax) if lin else h
+        landing = h_next >= remaining * (1.0 - 1e-12)
+        h_try = remaining if landing else h_next
+        y1, f1, err = _step(t, y, f, h_try, mode, c, tol)
         n_steps += 1
         if not math.isfinite(err):
             h = 0.25 * h_try
@@ -664,6 +840,8 @@ def simulate_one(row, seg, meta, opts, rec, record):
         if event != _EV_NONE:
             mode = _switch(event, y, c)
             f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
+            if closed:
+                _lin_prepare(mode, c)
         elif landing:
             si += 1
             _set_segment(c, si, nseg, seg)
@@ -671,11 +849,13 @@ def simulate_one(row, seg, meta, opts, rec, record):
                 in_window = True
                 height = max(height, y[1])
             f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
+            if closed:
+                _lin_prepare(mode, c)
         if record:
             n_rec = _record(rec, n_rec, t, y, mode, c)
         if touchdown or si > nseg:
             return height, STATUS_OK, n_steps, n_rec
-        if not (landing or event != _EV_NONE):
+        if not (lin or landing or event != _EV_NONE):
             h = h_try * (5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err**-0.2)))
         h = min(h, hmax)
 

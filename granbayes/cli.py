@@ -23,6 +23,9 @@ Exit codes
     ``fit`` or ``diagnose``: a sampler run did not converge (``granbayes.sampler``: the
     autocorrelation, cross-ensemble R-hat and ESS criteria). Everything is written, with
     the warnings; ``--allow-unconverged`` turns this into exit code 0.
+5
+    A campaign (``granbayes sbc``) finished but at least one of its tasks failed; the
+    error is in ``OUT/tasks.csv`` and everything else is written.
 
 Adding a subcommand
 -------------------
@@ -35,7 +38,6 @@ and exit code 2.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import difflib
 import json
@@ -43,8 +45,7 @@ import math
 import os
 import re
 import sys
-import tempfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
@@ -53,6 +54,7 @@ import numpy as np
 import pandas as pd
 
 from . import __version__
+from ._files import atomic_path, staged_folder
 from .errors import InputError
 from .experiment import COMMAND_NAMES, Experiment, load_batch_table, load_experiment
 from .forces import PARAMETER_NAMES, PARAMETERS, TERMS, parameter_term
@@ -65,6 +67,7 @@ __all__ = [
     "DEMO_PARAMS",
     "DEMO_PHI",
     "EXIT_FAILED_JUMP",
+    "EXIT_FAILED_TASK",
     "EXIT_INPUT",
     "EXIT_OK",
     "EXIT_UNCONVERGED",
@@ -88,6 +91,8 @@ EXIT_UNCONVERGED = 4
 EXIT_INPUT = 2
 #: Exit code when a jump did not finish (status ``failed:...``); outputs are still written.
 EXIT_FAILED_JUMP = 3
+#: Exit code when a campaign task failed (recorded in ``OUT/tasks.csv``); outputs written.
+EXIT_FAILED_TASK = 5
 
 #: Volume fraction of the demo bed: the critical packing of the founding thesis [-].
 DEMO_PHI = 0.612
@@ -230,42 +235,6 @@ def _check_target(path: Path, option: str) -> Path:
     if not path.parent.is_dir():
         raise UsageError(f"{option} {path}: folder {path.parent} does not exist")
     return path
-
-
-@contextlib.contextmanager
-def atomic_path(path: Path) -> Iterator[Path]:
-    """Yield a temporary path next to ``path``; move it onto ``path`` only on success.
-
-    A failure (an exception inside the ``with`` block) removes the temporary file and
-    leaves an existing ``path`` untouched, so a reader never sees a half-written file.
-
-    Parameters
-    ----------
-    path : Path
-        The final file.
-
-    Yields
-    ------
-    Path
-        Where to write.
-    """
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
-    try:
-        yield tmp_path
-        os.chmod(tmp_path, 0o666 & ~_umask())
-        os.replace(tmp_path, path)
-    except BaseException:
-        tmp_path.unlink(missing_ok=True)
-        raise
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def _write_csv(table: pd.DataFrame, path: Path) -> None:
@@ -597,32 +566,12 @@ def _run_demo(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------------------
 
 
-@contextlib.contextmanager
-def staged_folder(out: Path, resume: bool) -> Iterator[Path]:
-    """A work folder ``OUT.partial`` that replaces ``out`` only when the block succeeds.
-
-    A failed or interrupted run leaves ``out`` untouched and keeps ``OUT.partial`` (with
-    its MCMC checkpoint) for ``--resume``; without ``resume`` it is cleared first.
-    """
-    import shutil
-
-    work = out.with_name(out.name + ".partial")
-    if work.exists() and not resume:
-        shutil.rmtree(work)
-    work.mkdir(parents=True, exist_ok=True)
-    yield work
-    old = out.with_name(out.name + ".old")
-    if old.exists():
-        shutil.rmtree(old)
-    if out.exists():
-        out.rename(old)
-    work.rename(out)
-    if old.exists():
-        shutil.rmtree(old)
-
-
-def _add_inference_arguments(parser: argparse.ArgumentParser, max_steps: int) -> None:
-    """Arguments shared by ``fit`` and ``diagnose`` (same names everywhere)."""
+def _add_inference_arguments(
+    parser: argparse.ArgumentParser,
+    max_steps: int,
+    threads_help: str = "numba threads (default: all cores)",
+) -> None:
+    """Arguments shared by ``fit``, ``diagnose`` and ``sbc`` (same names everywhere)."""
     parser.add_argument("data", metavar="DIR", type=Path, help="experiment folder")
     parser.add_argument(
         "--out",
@@ -648,7 +597,7 @@ def _add_inference_arguments(parser: argparse.ArgumentParser, max_steps: int) ->
     parser.add_argument(
         "--max-steps", type=int, default=max_steps, help=f"step cap (default {max_steps})"
     )
-    parser.add_argument("--threads", type=int, help="numba threads (default: all cores)")
+    parser.add_argument("--threads", type=int, help=threads_help)
     parser.add_argument(
         "--quiet", action="store_true", help="no progress bars or progress messages"
     )
@@ -892,6 +841,136 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------------------
+# granbayes sbc
+# ----------------------------------------------------------------------------------------
+
+
+def _add_sbc_arguments(parser: argparse.ArgumentParser) -> None:
+    _add_inference_arguments(
+        parser,
+        max_steps=20_000,
+        threads_help="numba threads per replicate (default: cores / workers on the local "
+        "cluster, 1 on --scheduler)",
+    )
+    parser.add_argument(
+        "--terms",
+        default="depth,drag",
+        help=f"comma-separated force terms (default depth,drag; available: {', '.join(TERMS)})",
+    )
+    parser.add_argument(
+        "--replicates", type=int, required=True, help="number of SBC replicates (fits)"
+    )
+    parser.add_argument(
+        "--rank-draws",
+        type=int,
+        default=99,
+        help="posterior draws each true value is ranked among (default 99)",
+    )
+    parser.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="address of a running Dask scheduler, e.g. tcp://10.0.0.5:8786 "
+        "(default: a local cluster on this machine)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        help="worker processes of the local cluster (default: one per core)",
+    )
+    parser.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="seconds to try reaching --scheduler (default 10)",
+    )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue a killed run from OUT.partial: finished replicates are not recomputed",
+    )
+
+
+def run_sbc_command(args: argparse.Namespace) -> int:
+    """``granbayes sbc``: simulation-based calibration of fit as a Dask campaign."""
+    from .campaign import CampaignError
+    from .experiment import load_jumps
+    from .fit import FitConfig
+    from .priors import load_priors
+    from .sampler import SamplerSettings
+
+    _check_inference_arguments(args)
+    terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
+    sampler = SamplerSettings(
+        n_walkers=args.walkers, n_ensembles=args.ensembles, max_steps=args.max_steps
+    )
+    try:
+        config = FitConfig(terms=terms, sampler=sampler)
+    except ValueError as exc:
+        raise UsageError(f"--terms {args.terms}: {exc}") from None
+    if args.replicates < 1:
+        raise UsageError(f"--replicates {args.replicates}: must be >= 1")
+    kept = args.walkers * args.ensembles * config.sampler.n_draws
+    if not 1 <= args.rank_draws <= kept:
+        raise UsageError(
+            f"--rank-draws {args.rank_draws}: must be in [1, walkers x ensembles x "
+            f"{config.sampler.n_draws} kept draws = {kept}]"
+        )
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers {args.workers}: must be >= 1")
+    if args.workers is not None and args.scheduler is not None:
+        raise UsageError(
+            "--workers sizes the local cluster; with --scheduler the cluster has its own workers"
+        )
+    if not args.connect_timeout > 0:
+        raise UsageError(f"--connect-timeout {args.connect_timeout}: must be > 0")
+    experiment = load_experiment(args.data)
+    design = load_jumps(args.data, experiment)
+    priors = load_priors(args.priors) if args.priors else None
+    log = (lambda _m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    try:
+        result = _run_sbc_campaign(args, experiment, design, config, priors, log)
+    except CampaignError as exc:  # name the options the user typed
+        message = str(exc)
+        for name, flag in (("scheduler_address ", "--scheduler "), ("resume: ", "--resume: ")):
+            message = message.replace(name, flag, 1) if message.startswith(name) else message
+        raise UsageError(message) from None
+    print((args.out / "summary.md").read_text())
+    failed = result.campaign.n_failed
+    if failed:
+        print(
+            f"granbayes: warning: {failed} of {args.replicates} replicates failed; their "
+            f"errors are in {args.out / 'tasks.csv'} (rerun with --resume to retry them)",
+            file=sys.stderr,
+        )
+        return EXIT_FAILED_TASK
+    return EXIT_OK
+
+
+def _run_sbc_campaign(args, experiment, design, config, priors, log):
+    from .sbc import run_sbc
+
+    return run_sbc(
+        experiment,
+        design,
+        args.out,
+        config=config,
+        n_replicates=args.replicates,
+        seed=args.seed,
+        priors=priors,
+        n_rank_draws=args.rank_draws,
+        scheduler_address=args.scheduler,
+        n_workers=args.workers,
+        numba_threads=args.threads,
+        resume=args.resume,
+        progress=not args.quiet,
+        connect_timeout_s=args.connect_timeout,
+        data_source=str(args.data),
+        log=log,
+    )
+
+
+# ----------------------------------------------------------------------------------------
 # Registry and entry point
 # ----------------------------------------------------------------------------------------
 
@@ -923,6 +1002,17 @@ SUBCOMMANDS: list[Subcommand] = [
         description="Fit the baseline law, show its posterior predictive misfit per command "
         "x phi x frequency, try every other force term of the library, keep the ones PSIS-LOO "
         "clearly favours, and write OUT/diagnosis.json with a report and figures.",
+    ),
+    Subcommand(
+        "sbc",
+        "simulation-based calibration of fit on an experiment's design (Dask campaign)",
+        _add_sbc_arguments,
+        run_sbc_command,
+        description="Per replicate: draw the force law and scatter per volume fraction from "
+        "the priors, simulate the jumps of DIR's design, fit them, and rank each true value "
+        "among the posterior draws. Replicates run on Dask (a local cluster, or --scheduler), "
+        "each result written as it finishes (--resume continues a killed run). Writes "
+        "OUT/ranks.csv, OUT/summary.json, OUT/summary.md and OUT/sbc_ecdf.png.",
     ),
     Subcommand(
         "demo",

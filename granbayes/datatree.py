@@ -27,6 +27,8 @@ __all__ = [
     "elpd_difference",
     "compare",
     "plot_diagnostics",
+    "plot_sbc_ecdf",
+    "sbc_uniformity",
     "write_datatree",
     "read_datatree",
     "CI_PROB",
@@ -283,6 +285,111 @@ def plot_diagnostics(
         plt.close("all")
         written.append(path)
     return written
+
+
+def _sbc_dataset(pit: Mapping[str, np.ndarray], phis: Sequence[float]) -> xr.Dataset:
+    n = len(next(iter(pit.values())))
+    return xr.Dataset(
+        {name: (("replicate", "phi"), np.asarray(v, dtype=float)) for name, v in pit.items()},
+        coords={"replicate": np.arange(n), "phi": np.asarray(phis, dtype=float)},
+    )
+
+
+def sbc_uniformity(pit: Mapping[str, np.ndarray], phis: Sequence[float]) -> dict[str, np.ndarray]:
+    """ArviZ's uniformity test of SBC PIT values (``pot_c``, arviz-stats), per phi.
+
+    Parameters
+    ----------
+    pit : mapping of str to ndarray, shape (replicate, phi)
+        PIT values in (0, 1) (normalised ranks) per parameter.
+    phis : sequence of float
+        The volume fractions of the second axis.
+
+    Returns
+    -------
+    dict of str to ndarray, shape (phi,)
+        p-value per parameter and volume fraction.
+    """
+    import arviz_stats  # noqa: F401  (registers the ``azstats`` accessor)
+
+    ds = _sbc_dataset(pit, phis)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        p_values, _, _ = ds.azstats.uniformity_test(dim=["replicate"], method="pot_c")
+    return {name: np.atleast_1d(p_values[name].values) for name in pit}
+
+
+def plot_sbc_ecdf(
+    pit: Mapping[str, np.ndarray],
+    phis: Sequence[float],
+    path: Path,
+    *,
+    band_prob: float = 0.95,
+    seed: int = 0,
+    title: str = "",
+) -> Path:
+    """ECDF-difference plots of SBC PIT values with simultaneous confidence bands.
+
+    One panel per parameter (rows) and volume fraction (columns): the difference between
+    the ECDF of the normalised ranks and the uniform CDF (``arviz_plots.plot_ecdf_pit``,
+    with ArviZ's ``pot_c`` p-value and the points that drive a departure highlighted),
+    over the grey ``band_prob`` simultaneous band of a uniform sample of the same size
+    (``arviz_stats.ecdf_utils.ecdf_pit``, Säilynoja et al. 2022). A calibrated posterior
+    stays inside the band.
+
+    Parameters
+    ----------
+    pit : mapping of str to ndarray, shape (replicate, phi)
+        PIT values in (0, 1) per parameter.
+    phis : sequence of float
+        Volume fractions of the second axis.
+    path : Path
+        PNG file to write.
+    band_prob : float
+        Probability of the simultaneous band.
+    seed : int
+        Seed of the band's simulation.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    Path
+    """
+    import arviz_plots as azp
+    from arviz_stats.ecdf_utils import ecdf_pit
+    from matplotlib import pyplot as plt
+
+    ds = _sbc_dataset(pit, phis)
+    n = ds.sizes["replicate"]
+    n_phi, n_var = len(phis), len(pit)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pc = azp.plot_ecdf_pit(
+            xr.DataTree.from_dict({"prior_sbc": ds}),
+            group="prior_sbc",
+            sample_dims=["replicate"],
+            envelope_prob=band_prob,
+            backend="matplotlib",
+            col_wrap=n_phi,
+            figure_kwargs={"figsize": (2.8 * n_phi + 0.6, 2.3 * n_var + 0.6)},
+        )
+    x, _, lower, upper = ecdf_pit(
+        np.linspace(0.0, 1.0, n), band_prob, 1000, rng=np.random.default_rng(seed)
+    )
+    fig = pc.viz["figure"].item()
+    for ax in fig.axes:
+        ax.fill_between(x, lower - x, upper - x, step="post", color="0.75", alpha=0.5, lw=0)
+    fig.suptitle(
+        (title + "\n" if title else "")
+        + f"ECDF - uniform of the normalised ranks ({n} replicates); grey: "
+        f"{band_prob:.0%} simultaneous band",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+    return Path(path)
 
 
 def write_datatree(dt: xr.DataTree, path: Path) -> None:

@@ -410,7 +410,9 @@ def _warm_positions(model: JumpModel, parent: xr.DataTree, phi: float) -> np.nda
         lo, hi = coord.bounds_u
         with np.errstate(divide="ignore"):
             u = coord.to_u(values)
-        columns.append(np.clip(np.nan_to_num(u, nan=lo, neginf=lo, posinf=hi), lo, hi))
+        # just inside the support: an "off" value may sit on the prior's bound
+        inner = lo + 1e-6 * (hi - lo)
+        columns.append(np.clip(np.nan_to_num(u, nan=inner, neginf=inner, posinf=hi), inner, hi))
     out = np.column_stack(columns)
     return out[np.isfinite(model.log_prior(out))] if len(out) else None
 

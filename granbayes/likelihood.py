@@ -11,8 +11,9 @@ Parametrisations of the force law across volume fractions (``phi_mode``):
     one value per parameter for all jumps in the data (used per volume fraction: one
     force law for all five commands, the thesis's question);
 ``"quadratic"``
-    each parameter a quadratic in ``x = phi - phi_c`` (in log space for log-scale
-    parameters such as ``k``), fitted jointly over all volume fractions.
+    each parameter a quadratic in ``x = phi - phi_c`` in its sampling coordinate (log for
+    log-scale parameters such as ``k``, square root for coefficients with a uniform prior
+    from zero such as ``c_d``), fitted jointly over all volume fractions.
 
 Noise: Gaussian (default) or Student-t (``noise="student_t"``, ``nu`` degrees of freedom,
 fixed; a heavy-tailed option robust to outlying trials), with the scatter ``sigma_mm``
@@ -256,17 +257,16 @@ class JumpModel:
         """Log prior density [nats] of walker positions in the parameters' own units.
 
         :meth:`log_prior` is the density of the sampling coordinates (flat for log-uniform
-        priors); this is the density of the physical values the posterior reports (for a
-        log-scale coordinate ``u = log(value)``: ``log p_u(u) - u``), the one ArviZ's
-        prior-sensitivity analysis power-scales. In quadratic mode the coordinates are
-        polynomial coefficients and the two coincide.
+        priors); this is the density of the physical values the posterior reports
+        (``log p_u(u) - log |d value / d u|``), the one ArviZ's prior-sensitivity analysis
+        power-scales. In quadratic mode the coordinates are polynomial coefficients and
+        the two coincide.
         """
         u = np.atleast_2d(u)
         lp = self.log_prior(u)
         if self.phi_mode == "shared":
             for j, c in enumerate(self._coords):
-                if c.prior.log_scale:
-                    lp = lp - u[:, j]
+                lp = lp - c.prior.log_jacobian(u[:, j])
         return lp
 
     def _parameter_u(self, u: np.ndarray, x: np.ndarray) -> dict[str, np.ndarray]:

@@ -84,6 +84,10 @@ class SolverOptions:
     window_after : float
         The height window closes this long after the command ends, if the robot has not
         touched down before [s] (physics-model.md section 5).
+    closed_form : bool
+        Advance the linear regimes (elastic contact on the unloading line, no ground
+        force) by their exact closed form; ``False`` integrates them with Dormand-Prince
+        steps too (for checks of the integrator's order).
     """
 
     rtol: float = 1e-5
@@ -92,6 +96,7 @@ class SolverOptions:
     max_step: float = 0.01
     max_steps: int = 200_000
     window_after: float = 0.6
+    closed_form: bool = True
 
     @classmethod
     def converged(cls) -> SolverOptions:
@@ -107,6 +112,7 @@ class SolverOptions:
         opts[_kernel.OPT_HMAX] = self.max_step
         opts[_kernel.OPT_MAX_STEPS] = self.max_steps
         opts[_kernel.OPT_T_AFTER] = self.window_after
+        opts[_kernel.OPT_CLOSED] = 1.0 if self.closed_form else 0.0
         return opts
 
 

@@ -13,9 +13,20 @@ starts from the depth-only law and must
   deterministic),
 - gain: positive ELPD gain and a lower RMSE.
 
+- converge: every fit the decision rests on converged (``all_converged``), and the gain
+  is clear: more than 2 SE of the ELPD difference (the rule's own margin).
+
 A null case (no hidden effect) must give ``baseline_adequate``. The confusable pair drag /
 viscous is separated by the two frequencies (different intrusion speeds): each wins by
-ELPD when it is the truth; the margin and its SE are recorded in the test output.
+ELPD when it is the truth, by more than 1 SE of the paired difference (recorded).
+
+Two effects *outside* the library (``granbayes.calibration``: a bed stiffened by the
+pause of the delayed commands, and a stiffness that grows with the actuation frequency)
+must not be blamed on a library term: the verdict is ``misfit_remains``, or ``extended``
+with no misfit left (a law that truly explains the data).
+
+These are single draws: the measured error rates over many draws are in
+``docs/verdicts/`` (``benchmarks/calibrate_verdicts.py``).
 """
 
 from __future__ import annotations
@@ -26,8 +37,10 @@ import numpy as np
 import pytest
 
 from granbayes import CommandSettings, Experiment, Robot
+from granbayes import datatree as gdt
+from granbayes.calibration import OUT_OF_LIBRARY, make_case
 from granbayes.criticism import DiagnoseConfig, diagnose
-from granbayes.sampler import SamplerSettings
+from granbayes.forces import terms_of
 from granbayes.synthetic import make_jumps
 
 pytestmark = pytest.mark.slow
@@ -42,12 +55,7 @@ EFFECTS = {
     "compaction": {"c_comp": 0.6},
     "unloading": {"r_unload": 3.0},
 }
-CONFIG = DiagnoseConfig(
-    sampler=SamplerSettings(
-        n_walkers=12, check_every=100, tau_factor=20, n_draws=80, max_steps=3000
-    ),
-    max_refits=10,
-)
+CONFIG = DiagnoseConfig()
 
 
 def _truth(term: str | None):
@@ -90,8 +98,10 @@ def test_diagnose_finds_the_hidden_term(term: str) -> None:
     covered = [lo <= true_value <= hi for lo, _, hi in intervals.values()]
     assert sum(covered) >= 1, intervals
     assert all(abs(med / true_value - 1) < 0.35 for _, med, _ in intervals.values()), intervals
-    assert rec["selected"]["elpd_gain"] > 0
+    assert rec["selected"]["elpd_gain"] > 2.0 * rec["selected"]["elpd_gain_se"]
     assert rec["selected"]["rmse_after_mm"] < rec["selected"]["rmse_before_mm"]
+    assert rec["all_converged"], rec["fits"]
+    assert rec["residual_misfit"] == []
 
 
 @pytest.mark.xdist_group("null")
@@ -100,6 +110,7 @@ def test_null_case_keeps_the_baseline() -> None:
     d = _diagnosis(None)
     assert d.verdict == "baseline_adequate", d.to_json()["candidates"]
     assert d.added == []
+    assert d.to_json()["all_converged"]
 
 
 @pytest.mark.parametrize(
@@ -112,8 +123,26 @@ def test_null_case_keeps_the_baseline() -> None:
 def test_two_frequencies_separate_drag_from_viscous(truth: str, rival: str) -> None:
     """The true rate law beats its rival by ELPD (recorded with the SE of the difference)."""
     d = _diagnosis(truth)
-    first = {c["added"][0]: c for c in d.candidates if c["round"] == 1}
-    margin = first[truth]["elpd"] - first[rival]["elpd"]
-    print(f"{truth} vs {rival}: elpd margin {margin:.1f}")
-    assert margin > 0
-    assert np.isfinite(first[rival]["elpd"])
+    first = {c.term: c for c in d.candidates if c.round == 1}
+    loo = {t: gdt.loo(d.fits[terms_of(("depth", t))].datatree) for t in (truth, rival)}
+    margin, se = gdt.elpd_difference(loo[truth]["elpd_i"], loo[rival]["elpd_i"])
+    print(f"{truth} vs {rival}: elpd margin {margin:.1f} +- {se:.1f}")
+    assert margin > se
+    assert np.isfinite(first[rival].elpd)
+    assert first[truth].converged and first[rival].converged
+
+
+@pytest.mark.parametrize(
+    "effect", [pytest.param(e, marks=pytest.mark.xdist_group(e)) for e in OUT_OF_LIBRARY]
+)
+def test_effect_outside_the_library_is_not_blamed_on_a_term(effect: str) -> None:
+    """The library cannot explain it: misfit_remains, or a law that leaves no misfit."""
+    case = make_case(effect, seed=7)
+    d = diagnose(case.experiment, case.table, CONFIG, seed=5, log=lambda *a, **k: None)
+    rec = d.to_json()
+    print(effect, rec["verdict"], rec["selected"]["added"], len(rec["residual_misfit"]))
+    assert rec["verdict"] in ("misfit_remains", "extended"), rec["verdict"]
+    if rec["verdict"] == "extended":
+        assert rec["residual_misfit"] == []
+    else:
+        assert rec["residual_misfit"] or not rec["selected"]["added"]

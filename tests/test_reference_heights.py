@@ -1,10 +1,11 @@
 """The simulator against the project's converged reference heights.
 
 ``tests/data/reference-heights.csv`` (the project's copy of ``shared/reference-heights.csv``,
-checked equal to it wherever ``shared/`` sits beside the repository) is a batch table (``granbayes simulate --batch`` input) with
-a ``height_mm`` column: one jump per row, every command, every force term, elastic and
-plastic beds. Each row is its own test, named by its row number, command and the non-zero
-force parameters, so a failure says which physics broke.
+checked equal to it wherever ``shared/`` sits beside the repository) is a batch table
+(``granbayes simulate --batch`` input) with a ``height_mm`` column: one jump per row,
+every command, every force term, elastic and plastic beds. Each row is its own test,
+named by its row number, command and the non-zero force parameters, so a failure says
+which physics broke.
 """
 
 from __future__ import annotations
@@ -19,9 +20,7 @@ from granbayes import SolverOptions, load_batch_table, simulate_table
 from granbayes.forces import PARAMETER_NAMES
 
 REFERENCE_HEIGHTS = Path(__file__).resolve().parent / "data" / "reference-heights.csv"
-SHARED_REFERENCE_HEIGHTS = (
-    Path(__file__).resolve().parents[2] / "shared" / "reference-heights.csv"
-)
+SHARED_REFERENCE_HEIGHTS = Path(__file__).resolve().parents[2] / "shared" / "reference-heights.csv"
 
 #: The project contract: default solver settings reproduce converged heights within this.
 DEFAULT_TOLERANCE_MM = 0.05

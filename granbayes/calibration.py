@@ -1,0 +1,357 @@
+"""Error rates of ``diagnose``'s verdicts, measured on SYNTHETIC data sets with a known truth.
+
+A verdict such as "the missing physics is drag" is a scientific claim; one data set proves
+nothing. This module makes many data sets whose truth is known and records what
+:func:`granbayes.criticism.diagnose` concludes on each:
+
+``null``
+    the truth is the baseline law (``depth`` with a quadratic ``k(phi)``): every verdict
+    other than ``baseline_adequate`` is a false discovery;
+a library term (``drag``, ``added_mass``, ``stiffening``, ``viscous``, ``compaction``,
+``unloading``)
+    the truth is the baseline plus that term: the verdict is right when it is ``extended``
+    with exactly that term added (power);
+``pause_stiffening``, ``rate_stiffening`` (effects outside the library)
+    the truth makes the bed stiffer after a hold (the delayed commands, after grain
+    relaxation during the pause, cf. Hubicki et al. 2017) or stiffer at a higher actuation
+    frequency. No term of the library does either; the right answer is
+    ``misfit_remains``, or a law that truly leaves no misfit (both are recorded).
+
+Every case draws its robot, noise level, design (volume fractions, frequencies) and
+effect size from documented ranges with its own seed, so the study measures the rule
+over a population of plausible experiments, not one. :func:`diagnose_case` is the campaign
+task (``granbayes.campaign``); each row records enough (every candidate's gain and SE,
+the baseline's misfit statistics) for :func:`rederive_verdicts` to recompute the round-1
+decision under other thresholds without refitting, which is how the rule's thresholds are
+chosen.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from .commands import COMMAND_NAMES
+from .criticism import DiagnoseConfig, diagnose
+from .experiment import CommandSettings, Experiment, Robot
+from .simulator import simulate
+
+__all__ = [
+    "CASE_KINDS",
+    "EFFECT_RANGES",
+    "LIBRARY_EFFECTS",
+    "OUT_OF_LIBRARY",
+    "Case",
+    "diagnose_case",
+    "make_case",
+    "rederive_verdicts",
+    "summarize",
+]
+
+#: Effect sizes drawn (uniformly) for the library terms [SI].
+EFFECT_RANGES: dict[str, dict[str, tuple[float, float]]] = {
+    "drag": {"c_d": (40.0, 100.0)},
+    "added_mass": {"kappa": (1.0, 2.0)},
+    "stiffening": {"k2": (1.0e5, 2.0e5)},
+    "viscous": {"b": (20.0, 40.0)},
+    "compaction": {"c_comp": (0.5, 1.0)},
+    "unloading": {"r_unload": (2.0, 4.0)},
+}
+LIBRARY_EFFECTS = tuple(EFFECT_RANGES)
+#: Effects no library term represents, and their strength ranges [-].
+OUT_OF_LIBRARY: dict[str, tuple[float, float]] = {
+    "pause_stiffening": (0.25, 0.40),  # k x (1 + a) for the commands with a hold
+    "rate_stiffening": (0.30, 0.50),  # k x (1 + a (f - 10 Hz) / 10 Hz)
+}
+CASE_KINDS = ("null", *LIBRARY_EFFECTS, *OUT_OF_LIBRARY)
+
+_PHI_C = 0.612
+_PHIS = (0.592, 0.597, 0.602, 0.607, 0.617, 0.622, 0.627, 0.632)
+_FREQS_HZ = (7.0, 8.0, 10.0, 12.0)
+_HELD = ("delayed_stutter", "delayed_stutter_preload")
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    """One synthetic data set of the study.
+
+    Attributes
+    ----------
+    kind : str
+        ``null``, a library term or an out-of-library effect (module docstring).
+    experiment : Experiment
+        The robot and command defaults.
+    table : pandas.DataFrame
+        The jumps (``load_jumps`` columns plus ``source``).
+    truth : dict
+        What was drawn: robot, noise, design, k law and effect size.
+    """
+
+    kind: str
+    experiment: Experiment
+    table: pd.DataFrame
+    truth: dict
+
+
+def _k_law(rng: np.random.Generator) -> tuple[float, float, float]:
+    """Coefficients of ``k(phi) = k0 + k1 x + k2 x^2`` [N/m], ``x = phi - phi_c``."""
+    return (
+        float(rng.uniform(2500.0, 5000.0)),
+        float(rng.uniform(0.8e5, 1.6e5)),
+        float(rng.uniform(0.5e6, 2.0e6)),
+    )
+
+
+def make_case(kind: str, seed: int, trials: int = 3) -> Case:
+    """A SYNTHETIC data set of the given kind (module docstring), drawn from ``seed``.
+
+    Parameters
+    ----------
+    kind : str
+        One of :data:`CASE_KINDS`.
+    seed : int
+        Seed of everything drawn (robot, noise, design, effect, scatter).
+    trials : int
+        Repeated jumps per cell.
+
+    Returns
+    -------
+    Case
+    """
+    if kind not in CASE_KINDS:
+        raise ValueError(f"unknown case kind {kind!r}; expected one of {', '.join(CASE_KINDS)}")
+    rng = np.random.default_rng(seed)
+    robot = Robot(
+        m_motor=float(rng.uniform(0.8, 1.2)),
+        m_rod=float(rng.uniform(0.15, 0.3)),
+        m_foot=float(rng.uniform(0.08, 0.14)),
+        k_spring=float(rng.uniform(4000.0, 7000.0)),
+        c_spring=float(rng.uniform(2.0, 6.0)),
+        foot_radius=float(rng.uniform(0.025, 0.04)),
+    )
+    amplitude_mm = float(rng.uniform(16.0, 20.0))
+    experiment = Experiment(robot=robot, command=CommandSettings(amplitude_mm=amplitude_mm))
+    phis = tuple(sorted(float(p) for p in rng.choice(_PHIS, size=2, replace=False)))
+    freqs = tuple(sorted(float(f) for f in rng.choice(_FREQS_HZ, size=2, replace=False)))
+    sigma_mm = float(rng.uniform(1.5, 3.0))
+    k0, k1, k2 = _k_law(rng)
+    effect: dict[str, float] = {}
+    strength = 0.0
+    if kind in EFFECT_RANGES:
+        effect = {n: float(rng.uniform(*r)) for n, r in EFFECT_RANGES[kind].items()}
+    elif kind in OUT_OF_LIBRARY:
+        strength = float(rng.uniform(*OUT_OF_LIBRARY[kind]))
+    rows = []
+    for phi in phis:
+        x = phi - _PHI_C
+        k = k0 + k1 * x + k2 * x * x
+        for freq in freqs:
+            settings = CommandSettings(amplitude_mm=amplitude_mm, freq_hz=freq)
+            cell_exp = dataclasses.replace(experiment, command=settings)
+            for command in COMMAND_NAMES:
+                scale = 1.0
+                if kind == "pause_stiffening" and command in _HELD:
+                    scale = 1.0 + strength
+                elif kind == "rate_stiffening":
+                    scale = 1.0 + strength * (freq - 10.0) / 10.0
+                params = {"k": k * scale, **effect}
+                height = simulate(command, phi, params, experiment=cell_exp).height_mm[0]
+                for trial in range(1, trials + 1):
+                    rows.append(
+                        {
+                            "phi": phi,
+                            "command": command,
+                            "freq_hz": freq,
+                            "amplitude_mm": amplitude_mm,
+                            "delay_ms": experiment.command.delay_ms,
+                            "settle_periods": experiment.command.settle_periods,
+                            "trial": trial,
+                            "true_height_mm": height,
+                        }
+                    )
+    table = pd.DataFrame(rows)
+    table["height_mm"] = table["true_height_mm"] + rng.normal(0.0, sigma_mm, len(table))
+    table["source"] = f"synthetic: granbayes.calibration kind={kind} seed={seed}"
+    truth = {
+        "robot": dataclasses.asdict(robot),
+        "amplitude_mm": amplitude_mm,
+        "phis": list(phis),
+        "freqs_hz": list(freqs),
+        "sigma_mm": sigma_mm,
+        "k_law": [k0, k1, k2],
+        "effect": effect,
+        "out_of_library_strength": strength,
+    }
+    return Case(kind, experiment, table.drop(columns="true_height_mm"), truth)
+
+
+def diagnose_case(
+    kind: str, index: int, config: DiagnoseConfig | None = None, *, seed: int
+) -> list[dict[str, Any]]:
+    """Campaign task: make a case, run ``diagnose`` on it and record the outcome.
+
+    Parameters
+    ----------
+    kind : str
+        Case kind (:data:`CASE_KINDS`).
+    index : int
+        Replicate number within its kind (recorded).
+    config : DiagnoseConfig, optional
+        The rule and sampler settings under study.
+    seed : int
+        The task's seed: the case is drawn from it, and ``diagnose`` gets a spawned one.
+
+    Returns
+    -------
+    list of dict
+        One row: the truth summary, the verdict, what was added, the gains, the misfit
+        statistics and the round-1 candidates (JSON text) for :func:`rederive_verdicts`.
+    """
+    case_seed, diag_seed = (
+        int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(2)
+    )
+    case = make_case(kind, case_seed)
+    t0 = time.perf_counter()
+    d = diagnose(case.experiment, case.table, config, seed=diag_seed, log=lambda *a, **k: None)
+    rec = d.to_json()
+    misfit = pd.DataFrame(rec["misfit"])
+    round1 = [c for c in rec["candidates"] if c["round"] == 1]
+    sel = rec["selected"]
+    return [
+        {
+            "kind": kind,
+            "index": int(index),
+            "truth_effect": "+".join(f"{k}={v:.4g}" for k, v in case.truth["effect"].items()),
+            "ool_strength": case.truth["out_of_library_strength"],
+            "sigma_mm": case.truth["sigma_mm"],
+            "phis": "/".join(f"{p:g}" for p in case.truth["phis"]),
+            "freqs_hz": "/".join(f"{f:g}" for f in case.truth["freqs_hz"]),
+            "verdict": rec["verdict"],
+            "added": "+".join(sel["added"]),
+            "elpd_gain": sel["elpd_gain"],
+            "elpd_gain_se": sel["elpd_gain_se"],
+            "elpd_gain_cells": sel["elpd_gain_cells"],
+            "elpd_gain_cells_se": sel["elpd_gain_cells_se"],
+            "n_cells": len(misfit),
+            "dof_min": float(misfit["dof"].min()) if "dof" in misfit else np.nan,
+            "baseline_max_abs_z": float(misfit["z"].abs().max()),
+            "n_misfit_baseline": rec["n_misfit_cells"],
+            "n_residual_misfit": len(rec["residual_misfit"]),
+            "residual_max_abs_z": float(
+                max((abs(c["z_after"]) for c in sel["per_cell"]), default=0.0)
+            ),
+            "z_threshold": rec["rule"]["z_threshold"],
+            "all_converged": rec["all_converged"],
+            "n_fits": len(rec["fits"]),
+            "n_reruns": int(sum(f["reruns"] for f in rec["fits"])),
+            "round1": _round1_json(round1),
+            "wall_time_s": time.perf_counter() - t0,
+        }
+    ]
+
+
+def _round1_json(candidates: Sequence[Mapping]) -> str:
+    import json
+
+    keep = ("term", "elpd_diff_vs_current", "elpd_diff_vs_current_se", "converged")
+    return json.dumps([{k: c[k] for k in keep} for c in candidates])
+
+
+def rederive_verdicts(
+    results: pd.DataFrame,
+    *,
+    min_gain: float,
+    se_factor: float,
+    strong_gain: float,
+    family_alpha: float | None = None,
+) -> pd.Series:
+    """Round-1 outcome of each case under other thresholds, without refitting.
+
+    The term the rule would add in round 1 (``""``: none) given the recorded candidates
+    and baseline misfit. With ``family_alpha`` the misfit threshold is recomputed from the
+    recorded number of cells and degrees of freedom; otherwise the recorded one is used.
+    Later rounds are not rederived (they need the fits of round 1's choice).
+
+    Parameters
+    ----------
+    results : pandas.DataFrame
+        Rows of :func:`diagnose_case`.
+    min_gain, se_factor, strong_gain : float
+        The rule's thresholds [nats, -, nats].
+    family_alpha : float, optional
+        Family-wise false-alarm rate of the misfit cells.
+
+    Returns
+    -------
+    pandas.Series of str
+    """
+    import json
+
+    from scipy import stats
+
+    out = []
+    for r in results.itertuples():
+        if family_alpha is None:
+            thr = r.z_threshold
+        else:
+            q = family_alpha / (2.0 * r.n_cells)
+            thr = stats.t.isf(q, r.dof_min) if r.dof_min > 0 else stats.norm.isf(q)
+        misfit = r.baseline_max_abs_z > thr
+        cands = [c for c in json.loads(r.round1) if c["converged"]]
+        if not cands:
+            out.append("")
+            continue
+        best = max(cands, key=lambda c: c["elpd_diff_vs_current"])
+        gain, se = best["elpd_diff_vs_current"], best["elpd_diff_vs_current_se"]
+        clear = gain > min_gain and gain > se_factor * se
+        out.append(best["term"] if clear and (misfit or gain > strong_gain) else "")
+    return pd.Series(out, index=results.index)
+
+
+def summarize(results: pd.DataFrame) -> pd.DataFrame:
+    """Error rates per case kind, with binomial standard errors.
+
+    Columns: ``kind``, ``n``, ``right`` (the fraction of right answers: ``baseline_adequate``
+    for ``null``, ``extended`` with exactly the hidden term for a library term,
+    ``misfit_remains`` or a law leaving no misfit for an out-of-library effect) and its
+    ``right_se``; the fraction of each verdict; ``wrong_term`` (a library term named as
+    the cause that is not the truth: for ``null`` any named term, for an out-of-library
+    effect ``extended`` although misfit was left, which cannot happen by construction and
+    is a check); ``all_converged``; the median wall time per case.
+    """
+    rows = []
+    for kind, g in results.groupby("kind", sort=False):
+        n = len(g)
+        if kind == "null":
+            right = g["verdict"] == "baseline_adequate"
+            wrong_term = g["added"] != ""
+        elif kind in LIBRARY_EFFECTS:
+            right = (g["verdict"] == "extended") & (g["added"] == kind)
+            wrong_term = (g["added"] != "") & (g["added"] != kind)
+        else:
+            right = (g["verdict"] == "misfit_remains") | (
+                (g["verdict"] == "extended") & (g["n_residual_misfit"] == 0)
+            )
+            wrong_term = (g["verdict"] == "extended") & (g["n_residual_misfit"] > 0)
+        p = float(right.mean())
+        rows.append(
+            {
+                "kind": kind,
+                "n": n,
+                "right": p,
+                "right_se": float(np.sqrt(p * (1 - p) / n)),
+                **{
+                    f"verdict_{v}": float((g["verdict"] == v).mean())
+                    for v in ("baseline_adequate", "extended", "misfit_remains")
+                },
+                "wrong_term": float(wrong_term.mean()),
+                "all_converged": float(g["all_converged"].mean()),
+                "median_time_s": float(g["wall_time_s"].median()),
+            }
+        )
+    return pd.DataFrame(rows)

@@ -1,0 +1,607 @@
+"""Simulation-based calibration (SBC) of :func:`granbayes.fit.fit` on an experiment's design.
+
+Is the posterior that ``fit`` reports calibrated? Per replicate (Talts et al. 2018):
+
+1. draw every parameter from its prior, per volume fraction (the per-phi parametrisation
+   ``fit`` uses by default: at each phi the force-law parameters of the fitted terms and
+   that phi's scatter ``sigma_mm`` [mm]); a draw whose jumps do not all finish is drawn
+   again (the likelihood gives such laws zero weight, so this is the model's prior);
+2. simulate the design of the experiment folder (its robot and settings, and every row
+   of its ``jumps.csv``: phi, command, frequency and other settings, as many trials as it
+   has) and add Gaussian (or Student-t) scatter of the drawn ``sigma_mm``;
+3. fit these SYNTHETIC heights with the same terms, priors and sampler settings;
+4. rank each true value among ``n_rank_draws`` posterior draws, thinned to about one per
+   autocorrelation time so that they are roughly independent.
+
+If the fit is calibrated every rank is uniform on ``0..n_rank_draws``. The replicates run
+as tasks of a campaign (:mod:`granbayes.campaign`) on Dask, resumable, each with a seed
+spawned from the master seed. Outputs in ``OUT``: ``ranks.csv`` (one row per replicate,
+volume fraction and parameter), ``summary.json`` and ``summary.md`` (per parameter and
+phi: a chi-square test of uniformity of the binned ranks and ArviZ's ``pot_c`` test,
+coverage of the central 50% and 90% posterior intervals with binomial standard errors),
+``sbc_ecdf.png`` (ECDF-difference plots with simultaneous 95% bands, ArviZ), plus the
+campaign's ``tasks.csv`` and ``tasks/``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.metadata
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from . import datatree as gdt
+from ._files import atomic_path, write_json, write_text
+from .campaign import CampaignResult, Task, run_campaign, spawn_seeds
+from .experiment import Experiment
+from .fit import FitConfig, FitPart, data_hash, fit
+from .forces import TERMS
+from .likelihood import JumpModel, Observations
+from .priors import Prior, default_priors
+
+__all__ = [
+    "COVERAGE_LEVELS",
+    "SBCResult",
+    "draw_replicate",
+    "rank_draws",
+    "replicate_ranks",
+    "run_sbc",
+    "summarize_ranks",
+]
+
+#: Central posterior intervals whose coverage is reported.
+COVERAGE_LEVELS: tuple[float, ...] = (0.5, 0.9)
+
+#: Prior draws tried per volume fraction for a law whose jumps all finish.
+_MAX_PRIOR_TRIES = 200
+
+
+@dataclass
+class SBCResult:
+    """A finished simulation-based calibration.
+
+    Attributes
+    ----------
+    folder : Path
+        The output folder.
+    ranks : pandas.DataFrame
+        ``ranks.csv``: one row per replicate, phi and parameter.
+    summary : dict
+        ``summary.json``.
+    campaign : CampaignResult
+        Tasks, workers, timings.
+    """
+
+    folder: Path
+    ranks: pd.DataFrame
+    summary: dict[str, Any]
+    campaign: CampaignResult
+
+
+# ----------------------------------------------------------------------------------------
+# One replicate (runs on a Dask worker)
+# ----------------------------------------------------------------------------------------
+def _phi_model(
+    experiment: Experiment,
+    table: pd.DataFrame,
+    config: FitConfig,
+    priors: Mapping[str, Prior],
+) -> JumpModel:
+    """The model ``fit`` builds for one volume fraction (per-phi mode)."""
+    return JumpModel(
+        Observations.from_table(table),
+        experiment,
+        config.terms,
+        priors=priors,
+        phi_mode="shared",
+        noise=config.noise,
+        nu=config.nu,
+        fixed=config.fixed,
+        options=config.options,
+        n_threads=config.n_threads,
+    )
+
+
+def draw_replicate(
+    experiment: Experiment,
+    design: pd.DataFrame,
+    config: FitConfig,
+    priors: Mapping[str, Prior],
+    rng: np.random.Generator,
+) -> tuple[pd.DataFrame, dict[float, dict[str, float]]]:
+    """Draw a force law per volume fraction from the priors and simulate the design.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        Robot and command defaults.
+    design : pandas.DataFrame
+        The jumps table of the experiment (:func:`granbayes.load_jumps`); its heights are
+        replaced.
+    config : FitConfig
+        Terms, noise family and fixed parameters (``per_phi`` mode).
+    priors : mapping of str to Prior
+        The priors to draw from.
+    rng : numpy.random.Generator
+        Source of randomness.
+
+    Returns
+    -------
+    table : pandas.DataFrame
+        ``design`` with SYNTHETIC ``height_mm`` [mm] (simulated + scatter).
+    truths : dict
+        phi -> parameter name -> true value [SI; ``sigma_mm`` in mm].
+
+    Raises
+    ------
+    RuntimeError
+        If no prior draw in 200 gives jumps that all finish at some volume fraction.
+    """
+    table = design.reset_index(drop=True).copy()
+    heights = np.full(len(table), np.nan)
+    truths: dict[float, dict[str, float]] = {}
+    phi_col = table["phi"].to_numpy(float)
+    for phi in np.unique(phi_col):
+        rows = np.flatnonzero(phi_col == phi)
+        model = _phi_model(experiment, table.iloc[rows], config, priors)
+        for _ in range(_MAX_PRIOR_TRIES):
+            u = model.sample_prior(rng, 1)
+            sim, ok = model.predict(u)
+            if ok[0] and np.all(np.isfinite(sim)):
+                break
+        else:
+            raise RuntimeError(
+                f"at phi={phi:g} none of {_MAX_PRIOR_TRIES} prior draws gave jumps that all "
+                "finish; narrow the priors"
+            )
+        values = model.parameter_values(u)
+        sigma = float(values["sigma_mm"][0, 0])
+        n = len(rows)
+        eps = rng.standard_normal(n) if config.noise == "normal" else rng.standard_t(config.nu, n)
+        heights[rows] = sim[0, model.obs.config_of_obs] + sigma * eps
+        truths[float(phi)] = {
+            name: float(values[name][0, 0]) for name in (*model.parameters, "sigma_mm")
+        }
+    table["height_mm"] = heights
+    return table, truths
+
+
+def rank_draws(part: FitPart, n_rank_draws: int) -> tuple[np.ndarray, bool]:
+    """``n_rank_draws`` roughly independent posterior draws of one ensemble run.
+
+    The kept draws (every ``thin`` steps) are thinned further to one per largest
+    autocorrelation time ``tau`` of each walker, then ``n_rank_draws`` are taken evenly
+    spaced over all walkers. If fewer than ``n_rank_draws`` remain (a short chain), all
+    kept draws are used instead and ``independent`` is False.
+
+    Parameters
+    ----------
+    part : FitPart
+        One run of a fit.
+    n_rank_draws : int
+        Number of draws.
+
+    Returns
+    -------
+    draws : ndarray, shape (n_rank_draws, ndim)
+        In sampling coordinates.
+    independent : bool
+        Whether the draws are spaced by at least ``tau``.
+    """
+    run = part.run
+    samples = run.samples
+    _, n_draw, ndim = samples.shape
+    tau = float(np.nanmax(run.tau)) if np.any(np.isfinite(run.tau)) else math.nan
+    step = max(1, math.ceil(tau / run.thin)) if math.isfinite(tau) and tau > 0 else 1
+    thinned = samples[:, (n_draw - 1) % step :: step]  # always keeps the last draw
+    pool = np.swapaxes(thinned, 0, 1).reshape(-1, ndim)
+    independent = len(pool) >= n_rank_draws
+    if not independent:
+        pool = np.swapaxes(samples, 0, 1).reshape(-1, ndim)
+    if len(pool) < n_rank_draws:
+        raise ValueError(
+            f"n_rank_draws={n_rank_draws} exceeds the {len(pool)} posterior draws kept "
+            "(walkers x ensembles x n_draws of the sampler settings)"
+        )
+    pick = np.round(np.linspace(0, len(pool) - 1, n_rank_draws)).astype(int)
+    return pool[pick], independent
+
+
+def replicate_ranks(
+    experiment: Experiment,
+    design: pd.DataFrame,
+    config: FitConfig,
+    priors: Mapping[str, Prior],
+    n_rank_draws: int,
+    replicate: int,
+    *,
+    seed: int,
+) -> list[dict[str, Any]]:
+    """One SBC replicate: draw, simulate, fit, rank (a campaign task).
+
+    Parameters
+    ----------
+    experiment, design, config, priors
+        As :func:`draw_replicate`.
+    n_rank_draws : int
+        Posterior draws each true value is ranked among.
+    replicate : int
+        Index of the replicate (recorded).
+    seed : int
+        The replicate's seed; the prior draw and the fit get seeds spawned from it.
+
+    Returns
+    -------
+    list of dict
+        One row per volume fraction and parameter: ``replicate``, ``phi``,
+        ``parameter``, ``true_value``, ``rank`` (number of draws below the truth),
+        ``n_draws``, ``posterior_median``, and the run's ``converged``, ``tau_max``
+        [steps], ``n_steps``, ``independent_draws``.
+    """
+    truth_seed, fit_seed = spawn_seeds(seed, 2)
+    table, truths = draw_replicate(
+        experiment, design, config, priors, np.random.default_rng(truth_seed)
+    )
+    result = fit(experiment, table, config, seed=fit_seed, priors=priors)
+    rows = []
+    for part in result.parts:
+        phi = float(part.model.phis[0])
+        draws_u, independent = rank_draws(part, n_rank_draws)
+        values = part.model.parameter_values(draws_u)
+        for name in (*part.model.parameters, "sigma_mm"):
+            draws = values[name][:, 0]
+            true = truths[phi][name]
+            rows.append(
+                {
+                    "replicate": int(replicate),
+                    "phi": phi,
+                    "parameter": name,
+                    "true_value": true,
+                    "rank": int(np.sum(draws < true)),
+                    "n_draws": int(n_rank_draws),
+                    "posterior_median": float(np.median(draws)),
+                    "converged": bool(part.run.converged),
+                    "tau_max": float(np.nanmax(part.run.tau)),
+                    "n_steps": int(part.run.n_steps),
+                    "independent_draws": bool(independent),
+                }
+            )
+    return rows
+
+
+# ----------------------------------------------------------------------------------------
+# Summary
+# ----------------------------------------------------------------------------------------
+def _chi_square(ranks: np.ndarray, n_draws: int) -> dict[str, Any]:
+    """Chi-square test of uniformity of ranks ``0..n_draws`` in about n/5 bins (2-20)."""
+    n = len(ranks)
+    bins = int(min(max(n // 5, 2), 20, n_draws + 1))
+    which = np.arange(n_draws + 1) * bins // (n_draws + 1)  # bin of every possible rank
+    expected = np.bincount(which, minlength=bins) / (n_draws + 1) * n
+    observed = np.bincount(which[ranks], minlength=bins)
+    statistic, p_value = stats.chisquare(observed, expected)
+    return {"bins": bins, "statistic": float(statistic), "p_value": float(p_value)}
+
+
+def _coverage(ranks: np.ndarray, n_draws: int, level: float) -> dict[str, float]:
+    """How often the truth lies in the central ``level`` interval of the draws."""
+    n = len(ranks)
+    lo, hi = (1.0 - level) / 2.0 * n_draws, (1.0 + level) / 2.0 * n_draws
+    observed = float(np.mean((ranks >= lo) & (ranks <= hi)))
+    possible = np.arange(n_draws + 1)
+    nominal = float(np.mean((possible >= lo) & (possible <= hi)))  # under uniform ranks
+    return {
+        "observed": observed,
+        "se": math.sqrt(observed * (1.0 - observed) / n),
+        "nominal": nominal,
+        "nominal_se": math.sqrt(nominal * (1.0 - nominal) / n),
+    }
+
+
+def _pit(ranks: pd.DataFrame) -> tuple[dict[str, np.ndarray], list[float]]:
+    """Normalised ranks ``(rank + 0.5) / (n_draws + 1)``: parameter -> (replicate, phi)."""
+    phis = sorted(ranks["phi"].unique())
+    n_draws = int(ranks["n_draws"].iloc[0])
+    pit = {}
+    for name in dict.fromkeys(ranks["parameter"]):
+        wide = ranks[ranks["parameter"] == name].pivot_table(
+            index="replicate", columns="phi", values="rank"
+        )
+        wide = wide.reindex(columns=phis).dropna()
+        pit[name] = (wide.to_numpy(float) + 0.5) / (n_draws + 1)
+    return pit, phis
+
+
+def summarize_ranks(ranks: pd.DataFrame) -> list[dict[str, Any]]:
+    """Per parameter and volume fraction: uniformity tests and interval coverage.
+
+    Parameters
+    ----------
+    ranks : pandas.DataFrame
+        ``ranks.csv`` rows (``parameter``, ``phi``, ``rank``, ``n_draws``, ``converged``).
+
+    Returns
+    -------
+    list of dict
+        ``parameter``, ``phi``, ``n_replicates``, ``n_draws``, ``mean_normalised_rank``
+        (0.5 if calibrated), ``uniformity`` (chi-square on binned ranks: ``bins``,
+        ``statistic``, ``p_value``; and ArviZ's ``pot_c_p_value``), ``coverage`` (per
+        level ``"50%"``, ``"90%"``: ``observed`` with its binomial ``se``, and the
+        ``nominal`` value expected for uniform ranks with its ``nominal_se``), and
+        ``fraction_converged``.
+    """
+    if ranks.empty:
+        return []
+    if ranks["n_draws"].nunique() != 1:
+        raise ValueError("ranks must all be among the same number of draws (n_draws)")
+    n_draws = int(ranks["n_draws"].iloc[0])
+    pit, phis = _pit(ranks)
+    pot_c = gdt.sbc_uniformity(pit, phis) if all(len(v) >= 2 for v in pit.values()) else {}
+    out = []
+    for (name, phi), group in ranks.groupby(["parameter", "phi"], sort=False):
+        r = group["rank"].to_numpy(int)
+        uniformity = _chi_square(r, n_draws)
+        p_arviz = pot_c.get(name)
+        uniformity["pot_c_p_value"] = (
+            None if p_arviz is None else float(p_arviz[phis.index(float(phi))])
+        )
+        out.append(
+            {
+                "parameter": str(name),
+                "phi": float(phi),
+                "n_replicates": len(r),
+                "n_draws": n_draws,
+                "mean_normalised_rank": float(np.mean(r) / n_draws),
+                "uniformity": uniformity,
+                "coverage": {f"{lv:.0%}": _coverage(r, n_draws, lv) for lv in COVERAGE_LEVELS},
+                "fraction_converged": float(group["converged"].astype(bool).mean()),
+            }
+        )
+    return out
+
+
+def _summary_markdown(summary: Mapping[str, Any]) -> str:
+    lines = [
+        f"# Simulation-based calibration of `fit` ({', '.join(summary['terms'])})",
+        "",
+        f"Data: SYNTHETIC replicates of the design of `{summary['data_source']}`; "
+        f"{summary['n_replicates_ok']} of {summary['n_replicates']} replicates finished, "
+        f"master seed {summary['seed']}, ranks among {summary['n_rank_draws']} posterior "
+        "draws. Calibrated: uniformity p-values not small, coverage near nominal.",
+        "",
+        "| parameter | phi | n | p chi-square | p pot_c | 50% coverage | 90% coverage |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in summary["parameters"]:
+        u, c = row["uniformity"], row["coverage"]
+        p_pot = "-" if u["pot_c_p_value"] is None else f"{u['pot_c_p_value']:.3f}"
+        cov = [
+            f"{c[k]['observed']:.2f} ± {c[k]['se']:.2f} (nominal {c[k]['nominal']:.2f})"
+            for k in ("50%", "90%")
+        ]
+        lines.append(
+            f"| {row['parameter']} | {row['phi']:g} | {row['n_replicates']} | "
+            f"{u['p_value']:.3f} | {p_pot} | {cov[0]} | {cov[1]} |"
+        )
+    t = summary["timing"]
+    lines += [
+        "",
+        f"Compute: {t['task_s_total']:.0f} s of replicate time (median {t['task_s_median']:.1f} "
+        f"s per replicate) on {len(summary['workers'])} worker(s); this run's wall time "
+        f"{t['wall_s_this_run']:.0f} s.",
+        "",
+        "![ECDF difference](sbc_ecdf.png)",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------------------
+# The campaign
+# ----------------------------------------------------------------------------------------
+def run_sbc(
+    experiment: Experiment,
+    design: pd.DataFrame,
+    out: str | Path,
+    *,
+    config: FitConfig | None = None,
+    n_replicates: int = 100,
+    seed: int = 0,
+    priors: Mapping[str, Prior] | None = None,
+    n_rank_draws: int = 99,
+    scheduler_address: str | None = None,
+    n_workers: int | None = None,
+    numba_threads: int | None = None,
+    client=None,
+    resume: bool = False,
+    progress: bool = True,
+    connect_timeout_s: float = 10.0,
+    data_source: str = "",
+    log=None,
+) -> SBCResult:
+    """Simulation-based calibration of :func:`granbayes.fit.fit` on an experiment's design.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        Robot, command defaults and ``phi_c``.
+    design : pandas.DataFrame
+        The experiment's jumps (:func:`granbayes.load_jumps`): which jumps to simulate.
+    out : str or Path
+        Output folder (built as ``OUT.partial``; replaced only at the end).
+    config : FitConfig, optional
+        Terms and sampler settings of the fits (``phi_mode="per_phi"``).
+    n_replicates : int
+        Number of replicates (each a prior draw, a simulation and a fit).
+    seed : int
+        Master seed; replicate ``i`` gets the ``i``-th seed spawned from it, so results do
+        not depend on the number of workers, and more replicates extend a study.
+    priors : mapping of str to Prior, optional
+        Priors to draw from and to fit with (default: :func:`default_priors`).
+    n_rank_draws : int
+        Posterior draws each truth is ranked among (ranks ``0..n_rank_draws``); at most
+        ``n_walkers x n_ensembles x n_draws`` of the sampler settings.
+    scheduler_address : str, optional
+        An existing Dask scheduler; default: a local cluster.
+    n_workers : int, optional
+        Worker processes of the local cluster (default: one per core).
+    numba_threads : int, optional
+        numba threads per replicate (default: cores // workers locally, 1 otherwise).
+    client : distributed.Client, optional
+        An already connected client.
+    resume : bool
+        Continue a killed run in ``OUT.partial`` (or extend a finished ``OUT``); refused
+        for a folder of another study (other data, settings, priors or seed).
+    progress : bool
+        Show a progress bar.
+    connect_timeout_s : float
+        How long to try reaching ``scheduler_address`` [s].
+    data_source : str
+        Where the design came from (recorded).
+    log : callable, optional
+        Receives one-line messages.
+
+    Returns
+    -------
+    SBCResult
+
+    Raises
+    ------
+    ValueError
+        Bad arguments (``n_replicates < 1``, ``n_rank_draws`` out of range, quadratic
+        ``phi_mode``, empty design).
+    granbayes.campaign.CampaignError
+        Unreachable scheduler, or resume of another study; nothing is written then.
+    """
+    config = config or FitConfig(terms=("depth", "drag"))
+    if config.phi_mode != "per_phi":
+        raise ValueError(f"phi_mode must be 'per_phi' for SBC, got {config.phi_mode!r}")
+    if int(n_replicates) < 1:
+        raise ValueError(f"n_replicates must be >= 1, got {n_replicates}")
+    s = config.sampler
+    kept = s.n_walkers * s.n_ensembles * s.n_draws
+    if not 1 <= int(n_rank_draws) <= kept:
+        raise ValueError(
+            f"n_rank_draws must be in [1, walkers x ensembles x n_draws = {kept}], "
+            f"got {n_rank_draws}"
+        )
+    if len(design) == 0:
+        raise ValueError("design has no jumps")
+    # what the workers need; thread counts do not change results
+    config = dataclasses.replace(config, n_threads=None, n_prior_draws=0)
+    priors = dict(priors if priors is not None else default_priors())
+    design = design.reset_index(drop=True)
+    used = {*(p.name for t in config.terms for p in TERMS[t].parameters), "sigma_mm"}
+    description = {
+        "kind": "granbayes.sbc",
+        "data_sha256": data_hash(experiment, design),
+        "config": config.to_dict(),
+        "priors": {k: dataclasses.asdict(v) for k, v in sorted(priors.items()) if k in used},
+        "seed": int(seed),
+        "n_rank_draws": int(n_rank_draws),
+    }
+    seeds = spawn_seeds(seed, int(n_replicates))
+    tasks = [
+        Task(
+            f"replicate-{i:05d}",
+            replicate_ranks,
+            (experiment, design, config, priors, int(n_rank_draws), i),
+            seed=s,
+        )
+        for i, s in enumerate(seeds)
+    ]
+    holder: dict[str, Any] = {}
+
+    def finalize(work: Path, result: CampaignResult) -> None:
+        holder["summary"] = _write_outputs(
+            work, result, config, seed, n_replicates, n_rank_draws, description, data_source
+        )
+
+    campaign = run_campaign(
+        tasks,
+        out,
+        description=description,
+        scheduler_address=scheduler_address,
+        n_workers=n_workers,
+        client=client,
+        numba_threads=numba_threads,
+        resume=resume,
+        progress=progress,
+        connect_timeout_s=connect_timeout_s,
+        results_name="ranks.csv",
+        finalize=finalize,
+        log=log,
+    )
+    return SBCResult(Path(out), campaign.results, holder["summary"], campaign)
+
+
+def _write_outputs(
+    work: Path,
+    result: CampaignResult,
+    config: FitConfig,
+    seed: int,
+    n_replicates: int,
+    n_rank_draws: int,
+    description: Mapping[str, Any],
+    data_source: str,
+) -> dict[str, Any]:
+    """``summary.json``, ``summary.md`` and ``sbc_ecdf.png`` into the work folder."""
+    ranks = result.results
+    ok = result.tasks[result.tasks["status"] == "ok"]
+    elapsed = ok["elapsed_s"].astype(float)
+    summary: dict[str, Any] = {
+        "what": "simulation-based calibration of granbayes.fit on SYNTHETIC replicates",
+        "granbayes_version": _version(),
+        "data_source": data_source,
+        "data_sha256": description["data_sha256"],
+        "terms": list(config.terms),
+        "config": config.to_dict(),
+        "priors": description["priors"],
+        "seed": int(seed),
+        "n_replicates": int(n_replicates),
+        "n_replicates_ok": len(ok),
+        "n_replicates_failed": int(result.n_failed),
+        "n_rank_draws": int(n_rank_draws),
+        "fingerprint": result.fingerprint,
+        "workers": result.workers,
+        "timing": {
+            "task_s_total": float(elapsed.sum()),
+            "task_s_median": float(elapsed.median()) if len(elapsed) else None,
+            "wall_s_this_run": result.wall_time_s,
+            "tasks_reused": result.n_reused,
+            "tasks_run": result.n_run,
+        },
+        "uniformity_test": "chi-square of the ranks in equal-probability bins (scipy); "
+        "pot_c: ArviZ's uniformity test (arviz-stats)",
+        "coverage": "fraction of replicates whose true value lies in the central "
+        "interval of the ranked draws; se = sqrt(c (1 - c) / n)",
+        "parameters": summarize_ranks(ranks) if len(ranks) else [],
+    }
+    write_json(work / "summary.json", summary)
+    write_text(work / "summary.md", _summary_markdown(summary))
+    if len(ranks):
+        pit, phis = _pit(ranks)
+        if all(len(v) >= 2 for v in pit.values()):
+            with atomic_path(work / "sbc_ecdf.png") as tmp:
+                gdt.plot_sbc_ecdf(
+                    pit,
+                    phis,
+                    tmp,
+                    seed=seed,
+                    title=f"SBC of fit ({' + '.join(config.terms)}), {data_source or 'design'}",
+                )
+    return summary
+
+
+def _version() -> str:
+    try:
+        return importlib.metadata.version("granbayes")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
