@@ -248,12 +248,10 @@ def _jsonable(value: object) -> object:
 
 # ----------------------------------------------------------------------------------------
 def sampler_settings(fast: bool) -> SamplerSettings:
-    """Production chains (>= 50 tau after burn-in), or short ones in fast mode."""
+    """The converged default of ``granbayes fit``, or short capped chains in fast mode."""
     if fast:
-        return SamplerSettings(
-            n_walkers=12, max_steps=400, check_every=100, tau_factor=5.0, n_draws=40
-        )
-    return SamplerSettings(n_walkers=16, check_every=100, n_draws=125)
+        return SamplerSettings(n_ensembles=2, max_steps=400, min_ess=100, n_draws=40)
+    return SamplerSettings()
 
 
 def run_fit(

@@ -225,7 +225,8 @@ def force_posterior(ctx: common.Context) -> tuple[xr.DataTree, str]:
     sampler = common.sampler_settings(ctx.fast)
     return result.datatree, (
         f"force law `{' + '.join(terms)}` fitted per volume fraction here "
-        f"({sampler.n_walkers} walkers, {sampler.n_draws} kept draws each)"
+        f"({sampler.n_ensembles} ensembles of {sampler.n_walkers} walkers, "
+        f"{sampler.n_draws} kept draws each)"
     )
 
 
