@@ -15,9 +15,20 @@ import pandas as pd
 import pytest
 
 from granbayes import __version__
-from granbayes.cli import EXIT_FAILED_JUMP, EXIT_INPUT, EXIT_OK, atomic_path, main
-from granbayes.experiment import COMMAND_NAMES, load_experiment
+from granbayes.cli import (
+    EXIT_FAILED_JUMP,
+    EXIT_INPUT,
+    EXIT_OK,
+    EXIT_UNCONVERGED,
+    ProgressBars,
+    atomic_path,
+    main,
+)
+from granbayes.datatree import read_datatree
+from granbayes.experiment import COMMAND_NAMES, Experiment, load_experiment
+from granbayes.sampler import ProgressInfo
 from granbayes.simulator import simulate
+from granbayes.synthetic import make_jumps, write_experiment
 
 REFERENCE_HEIGHTS = Path(__file__).resolve().parent / "data" / "reference-heights.csv"
 
@@ -33,6 +44,7 @@ TRAJECTORY_COLUMNS = [
     "added_mass_kg",
     "mode",
     "alpha_mm",
+    "unloading_slope_N_m",
 ]
 
 ONE_JUMP = ["simulate", "--command", "single", "--phi", "0.612", "--param", "k=3000"]
@@ -400,3 +412,172 @@ def test_demo_writes_its_files(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert code == EXIT_OK
     again = pd.read_csv(tmp_path / "again.csv")
     np.testing.assert_allclose(again["height_mm"], heights["height_mm"])
+
+
+# ----------------------------------------------------------------------------------------
+# Inference: exit codes, --quiet, the sampler options, progress bars
+# ----------------------------------------------------------------------------------------
+
+#: A fit capped at 100 steps: too short for the default stopping rule (ESS >= 400 over two
+#: ensembles of 8 walkers), so it does not converge.
+CAPPED_FIT = ["--terms", "depth", "--seed", "1", "--walkers", "8", "--ensembles", "2"]
+CAPPED_FIT += ["--max-steps", "100", "--threads", "1"]
+
+
+@pytest.fixture(scope="module")
+def small_experiment(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """SYNTHETIC experiment folder: depth-only law, phi 0.612, three commands x 3 trials."""
+    jumps = make_jumps(
+        lambda phi: {"k": 4000.0},
+        3.0,
+        phis=(0.612,),
+        freqs_hz=(10.0,),
+        commands=("single", "preload", "delayed_stutter"),
+        trials=3,
+        seed=5,
+        label="tests/test_cli.py",
+    )
+    return write_experiment(tmp_path_factory.mktemp("cli") / "exp", jumps, Experiment())
+
+
+def test_fit_unconverged_exits_4_and_writes_everything(
+    small_experiment: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An unconverged fit exits 4 (``EXIT_UNCONVERGED``) after writing all its results.
+
+    With ``--quiet`` nothing goes to stdout; stderr has the warnings (one line each) and
+    one error line. The report says the run did not converge and shows the sampler's
+    R-hat across ensembles and ESS, per run and per parameter.
+    """
+    out = tmp_path / "OUT"
+    code, stdout, err = run(
+        capsys, "fit", str(small_experiment), "--out", str(out), *CAPPED_FIT, "--quiet"
+    )
+    assert code == EXIT_UNCONVERGED == 4
+    assert stdout == ""
+    lines = err.splitlines()
+    assert lines[-1].startswith("granbayes: error: a sampler run did not converge")
+    assert "--allow-unconverged" in lines[-1]
+    assert len(lines) >= 2
+    assert all(line.startswith("granbayes: warning: run phi=0.612: ") for line in lines[:-1])
+    for name in ("posterior.nc", "summary.md", "summary.csv", "diagnostics.csv"):
+        assert (out / name).is_file(), name
+    assert not out.with_name("OUT.partial").exists()
+    dt = read_datatree(out / "posterior.nc")
+    assert json.loads(dt.attrs["converged"]) is False
+    warnings = json.loads(dt.attrs["warnings"])
+    assert [f"granbayes: warning: {w}" for w in warnings] == lines[:-1]
+    text = (out / "summary.md").read_text()
+    assert "**Warnings**" in text
+    header = next(line for line in text.splitlines() if line.startswith("| run |"))
+    columns = [c.strip() for c in header.strip("|").split("|")]
+    assert {"n_ensembles", "n_chains", "rhat_max", "ess_min", "converged"} <= set(columns)
+    row = next(line for line in text.splitlines() if line.startswith("| phi=0.612 |"))
+    cells = dict(zip(columns, (c.strip() for c in row.strip("|").split("|")), strict=True))
+    assert (cells["n_ensembles"], cells["n_chains"], cells["n_steps"]) == ("2", "16", "100")
+    assert cells["converged"] == "False"
+    # which part of the stopping rule failed is in the table (NaN: not assessed yet)
+    unmet = (
+        float(cells["steps_over_tau"]) < 10.0,
+        not float(cells["rhat_max"]) <= 1.01,
+        not float(cells["ess_min"]) >= 400.0,
+    )
+    assert any(unmet)
+    summary = pd.read_csv(out / "summary.csv")
+    assert {"r_hat", "ess_bulk", "ess_tail"} <= set(summary.columns)
+    assert "r_hat" in text and "ess_bulk" in text
+
+
+def test_fit_allow_unconverged_exits_0(
+    small_experiment: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--allow-unconverged``: the same unconverged fit exits 0, still warns on stderr,
+    and (without ``--quiet``) prints the summary on stdout."""
+    out = tmp_path / "OUT"
+    code, stdout, err = run(
+        capsys, "fit", str(small_experiment), "--out", str(out), *CAPPED_FIT, "--allow-unconverged"
+    )
+    assert code == EXIT_OK
+    assert stdout == (out / "summary.md").read_text() + "\n"
+    lines = err.splitlines()
+    assert lines and all(line.startswith("granbayes: warning: ") for line in lines)
+    assert json.loads(read_datatree(out / "posterior.nc").attrs["converged"]) is False
+
+
+@pytest.mark.parametrize("subcommand", ["fit", "diagnose"])
+@pytest.mark.parametrize(
+    ("option", "value", "fragment"),
+    [
+        ("--ensembles", "1", "must be >= 2"),
+        ("--ensembles", "0", "must be >= 2"),
+        ("--walkers", "5", "even number >= 4"),
+        ("--walkers", "2", "even number >= 4"),
+        ("--max-steps", "50", "must be >= 100"),
+        ("--threads", "0", "must be >= 1"),
+    ],
+)
+def test_inference_options_refused(
+    subcommand: str,
+    option: str,
+    value: str,
+    fragment: str,
+    small_experiment: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Bad sampler options of fit and diagnose: exit 2, one line naming the option, no OUT
+    (a single ensemble cannot be checked for agreement with another)."""
+    out = tmp_path / "OUT"
+    code, stdout, err = run(
+        capsys, subcommand, str(small_experiment), "--out", str(out), option, value
+    )
+    assert_one_error_line(code, stdout, err, f"{option} {value}", fragment)
+    assert not out.exists()
+    assert not out.with_name("OUT.partial").exists()
+
+
+def test_inference_help_lists_the_sampler_options(capsys: pytest.CaptureFixture[str]) -> None:
+    """fit and diagnose share --walkers (per ensemble), --ensembles, --quiet and
+    --allow-unconverged; --progress is gone (bars are drawn when stderr is a terminal)."""
+    for subcommand in ("fit", "diagnose"):
+        code, stdout, _ = run(capsys, subcommand, "--help")
+        assert code == EXIT_OK
+        for option in ("--walkers", "--ensembles", "--quiet", "--allow-unconverged"):
+            assert option in stdout, (subcommand, option)
+        assert "--progress" not in stdout
+        assert "per ensemble" in stdout
+
+
+def _info(step: int, converged: bool = False) -> ProgressInfo:
+    return ProgressInfo(
+        step=step, max_steps=1000, tau_max=12.0, rhat_max=1.004, ess_min=456.0, converged=converged
+    )
+
+
+def test_progress_bars_one_labelled_bar_per_run(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """On a terminal, one bar per run label, with steps, tau, R-hat, ESS and convergence;
+    none with ``quiet`` or when stderr is not a terminal."""
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    with ProgressBars(quiet=False) as bars:
+        assert bars.enabled
+        bars("phi=0.602", _info(100))
+        bars("phi=0.602", _info(200, converged=True))
+        bars("phi=0.622", _info(100))
+        assert sorted(bars.bars) == ["phi=0.602", "phi=0.622"]
+        assert bars.bars["phi=0.602"].n == 200
+        assert bars.bars["phi=0.602"].total == 200  # a converged run's bar ends there
+        assert bars.bars["phi=0.622"].total == 1000
+    err = capsys.readouterr().err
+    assert "phi=0.602" in err and "phi=0.622" in err
+    assert "rhat=1.004" in err and "ess=456" in err and "tau=12" in err
+    with ProgressBars(quiet=True) as bars:
+        assert not bars.enabled
+        bars("phi=0.602", _info(100))
+        assert bars.bars == {}
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: False)
+    with ProgressBars(quiet=False) as bars:
+        assert not bars.enabled
+        bars("phi=0.602", _info(100))
+    assert capsys.readouterr().err == ""
