@@ -801,10 +801,13 @@ class ProgressBars:
     Each bar shows the run's label (volume fraction), steps against the cap, the largest
     autocorrelation time, R-hat across ensembles, the smallest ESS and whether the run has
     converged. Bars are drawn on stderr when it is a terminal and ``quiet`` is false.
+    With ``leave=False`` (``diagnose``: many fits) a run's bar is removed when the run
+    converges or reaches its step cap.
     """
 
-    def __init__(self, quiet: bool = False) -> None:
+    def __init__(self, quiet: bool = False, *, leave: bool = True) -> None:
         self.enabled = not quiet and sys.stderr.isatty()
+        self.leave = leave
         self.bars: dict = {}
 
     def __enter__(self) -> ProgressBars:
@@ -822,7 +825,7 @@ class ProgressBars:
 
         bar = self.bars.get(label)
         if bar is None:
-            bar = tqdm(total=info.max_steps, desc=label, unit="step", leave=True)
+            bar = tqdm(total=info.max_steps, desc=label, unit="step", leave=self.leave)
             self.bars[label] = bar
         bar.update(info.step - bar.n)
         bar.set_postfix(
@@ -834,6 +837,9 @@ class ProgressBars:
         if info.converged:
             bar.total = info.step
             bar.refresh()
+        if not self.leave and (info.converged or info.step >= info.max_steps):
+            bar.close()
+            del self.bars[label]
 
 
 # ----------------------------------------------------------------------------------------
@@ -888,7 +894,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
     table = load_jumps(args.data, experiment)
     priors = load_priors(args.priors) if args.priors else None
     log = (lambda *a, **k: None) if args.quiet else (lambda *a, **k: print(*a, **k, flush=True))
-    with staged_folder(args.out, resume=False) as work:
+    bars = ProgressBars(args.quiet, leave=False)
+    with staged_folder(args.out, resume=False) as work, bars:
         result = diagnose(
             experiment,
             table,
@@ -897,6 +904,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
             priors=priors,
             data_source=str(args.data),
             log=log,
+            progress=bars,
         )
         write_diagnosis_report(result.to_json(), result.selected.datatree, work)
     if not args.quiet:
@@ -1324,7 +1332,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="granbayes",
         description="Simulate a jumping robot on granular media and infer the ground force.",
         epilog="Exit codes: 0 success, 2 bad input (nothing written), 3 a jump did not "
-        "finish (outputs written).",
+        f"finish (outputs written), {EXIT_UNCONVERGED} a fit or diagnosis did not converge "
+        "(results written; --allow-unconverged exits 0), 5 a campaign task failed.",
     )
     parser.add_argument("--version", action="version", version=f"granbayes {__version__}")
     sub = parser.add_subparsers(dest="subcommand", metavar="SUBCOMMAND", required=True)
@@ -1351,7 +1360,8 @@ def main(argv: list[str] | None = None) -> int:
     Returns
     -------
     int
-        Exit code: 0 success, 2 bad input, 3 a jump did not finish.
+        Exit code (module docstring): 0 success, 2 bad input, 3 a jump did not finish,
+        4 a sampler run did not converge, 5 a campaign task failed.
     """
     parser = build_parser()
     try:

@@ -55,7 +55,7 @@ from .fitting import FitConfig, FitResult, fit
 from .forces import TERMS, terms_of
 from .likelihood import Observations
 from .priors import Prior
-from .sampler import SamplerSettings
+from .sampler import ProgressInfo, SamplerSettings
 from .saved import SavedFit
 
 __all__ = [
@@ -390,6 +390,9 @@ class FitBank:
     data_source : str
     log : callable
         Progress messages.
+    progress : callable, optional
+        ``progress(label, info)`` after every sampler chunk of every fit; the label names
+        the law and the run (``"depth + drag, phi=0.602"``).
     """
 
     def __init__(
@@ -401,9 +404,11 @@ class FitBank:
         seed: int,
         data_source: str,
         log: Callable[..., None],
+        progress: Callable[[str, ProgressInfo], None] | None = None,
     ) -> None:
         self.experiment, self.table, self.config = experiment, table, config
         self.priors, self.seed, self.data_source, self.log = priors, seed, data_source, log
+        self.progress = progress
         self.fits: dict[tuple[str, ...], FitResult] = {}
         self.loos: dict[tuple[str, ...], dict] = {}
         self.records: dict[tuple[str, ...], FitRecord] = {}
@@ -421,6 +426,13 @@ class FitBank:
         code = sum((i + 1) * (list(TERMS).index(t) + 1) for i, t in enumerate(key))
         return int(np.random.SeedSequence([self.seed, code, attempt]).generate_state(1)[0])
 
+    def _progress(self, key: tuple[str, ...], what: str = ""):
+        """The fit's ``progress`` callback, its labels prefixed with the law."""
+        if self.progress is None:
+            return None
+        law = " + ".join(key) + what
+        return lambda label, info: self.progress(f"{law}, {label}", info)
+
     def _run(self, key, parent: tuple[str, ...] | None, attempt: int) -> FitResult:
         warm = self.fits[parent].datatree if parent is not None else None
         return fit(
@@ -431,6 +443,7 @@ class FitBank:
             priors=self.priors,
             data_source=self.data_source,
             warm_start=warm,
+            progress=self._progress(key, f" (rerun {attempt})" if attempt else ""),
         )
 
     def get(self, terms: Sequence[str], parent: Sequence[str] | None = None) -> FitResult:
@@ -757,6 +770,7 @@ def diagnose(
     priors: Mapping[str, Prior] | None = None,
     data_source: str = "",
     log: Callable[..., None] = print,
+    progress: Callable[[str, ProgressInfo], None] | None = None,
 ) -> Diagnosis:
     """Run the criticism loop (module docstring) on measured jumps.
 
@@ -776,6 +790,9 @@ def diagnose(
         Where the data came from.
     log : callable
         Progress messages (``print`` by default; pass ``lambda *a: None`` to silence).
+    progress : callable, optional
+        ``progress(label, info)`` (:class:`granbayes.sampler.ProgressInfo`) after every
+        sampler chunk of every fit, labelled by law and run (one bar per fit run).
 
     Returns
     -------
@@ -783,7 +800,7 @@ def diagnose(
     """
     cfg = config or DiagnoseConfig()
     table = table.reset_index(drop=True)
-    bank = FitBank(experiment, table, cfg, priors, seed, data_source, log)
+    bank = FitBank(experiment, table, cfg, priors, seed, data_source, log, progress)
     pointwise = _Pointwise(bank)
     base = terms_of(cfg.baseline)
     log(f"Baseline: {' + '.join(base)}")

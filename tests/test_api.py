@@ -442,3 +442,38 @@ def test_single_jump_setting_flags(capsys) -> None:
     assert code == EXIT_INPUT and "--freq-hz 0: must be > 0" in err
     code, out, err = run(capsys, *argv, "--delay-ms", "abc")
     assert code == EXIT_INPUT and "--delay-ms abc: expected a number" in err
+
+
+def test_diagnose_progress_labels_name_law_and_run() -> None:
+    """diagnose hands every fit a progress callback labelled by law and run."""
+    from granbayes.criticism import FitBank
+    from granbayes.sampler import ProgressInfo
+
+    seen = []
+    bank = FitBank(
+        gb.Experiment(), pd.DataFrame(), gb.DiagnoseConfig(), None, 0, "", print,
+        lambda label, info: seen.append((label, info.step)),
+    )  # fmt: skip
+    info = ProgressInfo(100, 1000, 12.0, 1.02, 300.0, False)
+    bank._progress(("depth", "drag"))("phi=0.602", info)
+    bank._progress(("depth",), " (rerun 1)")("all", info)
+    assert seen == [("depth + drag, phi=0.602", 100), ("depth (rerun 1), all", 100)]
+    assert FitBank(gb.Experiment(), pd.DataFrame(), gb.DiagnoseConfig(), None, 0, "",
+                   print)._progress(("depth",)) is None  # fmt: skip
+
+
+def test_progress_bars_one_per_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    """ProgressBars: one bar per label; with leave=False removed once the run ends."""
+    from granbayes.cli import ProgressBars
+    from granbayes.sampler import ProgressInfo
+
+    bars = ProgressBars(quiet=False, leave=False)
+    bars.enabled = True  # as on a terminal
+    with bars:
+        bars("depth, phi=0.6", ProgressInfo(100, 300, 10.0, 1.1, 50.0, False))
+        bars("depth, phi=0.7", ProgressInfo(100, 300, 10.0, 1.1, 50.0, False))
+        assert set(bars.bars) == {"depth, phi=0.6", "depth, phi=0.7"}
+        bars("depth, phi=0.6", ProgressInfo(200, 300, 10.0, 1.0, 500.0, True))
+        bars("depth, phi=0.7", ProgressInfo(300, 300, 10.0, 1.1, 50.0, False))
+        assert bars.bars == {}
+    assert not ProgressBars(quiet=True).enabled
