@@ -552,7 +552,7 @@ def test_batch_zero_force_parameters_allowed(tmp_path: Path) -> None:
         ("k", "-1", ">= 0"),
         ("c_d", "abc", "expected a number"),
         ("kappa", "inf", "finite"),
-        ("r_unload", "0", "> 0"),
+        ("r_unload", "0", ">= 1"),
         ("k2", "-0.1", ">= 0"),
         ("b", "nan", "finite"),
         ("m_motor", "0", "> 0"),
