@@ -28,7 +28,7 @@ from matplotlib.figure import Figure
 import granbayes
 from granbayes import COMMAND_NAMES, Experiment, InputError, load_experiment, load_jumps
 from granbayes.cli import staged_folder
-from granbayes.fit import FitConfig, FitResult, data_hash, fit
+from granbayes.fitting import FitConfig, FitResult, data_hash, fit
 from granbayes.likelihood import SETTING_COLUMNS  # per-row command settings of a jumps table
 from granbayes.report import markdown_table as _markdown_table
 from granbayes.report import source_label

@@ -23,7 +23,7 @@ from pathlib import Path
 import numba
 
 from granbayes import load_experiment, load_jumps, simulate
-from granbayes.fit import FitConfig, fit
+from granbayes.fitting import FitConfig, fit
 from granbayes.report import write_fit_report
 
 HERE = Path(__file__).resolve().parent

@@ -34,7 +34,7 @@ import numba
 
 from granbayes import load_experiment, load_jumps, simulate
 from granbayes.campaign import local_cluster_size
-from granbayes.fit import FitConfig
+from granbayes.fitting import FitConfig
 from granbayes.sampler import SamplerSettings
 from granbayes.sbc import run_sbc
 

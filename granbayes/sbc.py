@@ -1,4 +1,4 @@
-"""Simulation-based calibration (SBC) of :func:`granbayes.fit.fit` on an experiment's design.
+"""Simulation-based calibration (SBC) of :func:`granbayes.fit` on an experiment's design.
 
 Is the posterior that ``fit`` reports calibrated? Per replicate (Talts et al. 2018):
 
@@ -41,7 +41,7 @@ from . import datatree as gdt
 from ._files import atomic_path, write_json, write_text
 from .campaign import CampaignResult, Task, run_campaign, spawn_seeds
 from .experiment import Experiment
-from .fit import FitConfig, FitPart, data_hash, fit
+from .fitting import FitConfig, FitPart, data_hash, fit
 from .forces import TERMS
 from .likelihood import JumpModel, Observations
 from .priors import Prior, default_priors
@@ -426,7 +426,7 @@ def run_sbc(
     data_source: str = "",
     log=None,
 ) -> SBCResult:
-    """Simulation-based calibration of :func:`granbayes.fit.fit` on an experiment's design.
+    """Simulation-based calibration of :func:`granbayes.fit` on an experiment's design.
 
     Parameters
     ----------

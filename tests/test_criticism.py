@@ -16,7 +16,7 @@ import pytest
 from granbayes import Experiment
 from granbayes.cli import main
 from granbayes.criticism import DiagnoseConfig, describe_cell, diagnose, residual_table
-from granbayes.fit import FitConfig, fit
+from granbayes.fitting import FitConfig, fit
 from granbayes.sampler import SamplerSettings
 from granbayes.synthetic import make_jumps, write_experiment
 

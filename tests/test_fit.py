@@ -20,13 +20,13 @@ import pandas as pd
 import pytest
 import xarray as xr
 
-import granbayes.fit as gfit
+import granbayes.fitting as gfit
 import granbayes.report as greport
 import granbayes.sampler as gsampler
 from granbayes import COMMAND_NAMES, Experiment, load_experiment, load_jumps, simulate
 from granbayes.cli import EXIT_INPUT, EXIT_OK, main
 from granbayes.datatree import read_datatree, write_datatree
-from granbayes.fit import FitConfig, FitResult, compare_commands, data_hash, fit
+from granbayes.fitting import FitConfig, FitResult, compare_commands, data_hash, fit
 from granbayes.sampler import SamplerSettings, load_checkpoint
 
 #: The synthetic truth: a depth-only law [N/m] and the trial-to-trial scatter [mm].
