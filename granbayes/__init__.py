@@ -7,6 +7,8 @@ The package follows the flow of data:
 criticism -> report.
 """
 
+import importlib.metadata as _metadata
+
 from .commands import CommandProgram, Segment, build_command
 from .errors import InputError
 from .experiment import (
@@ -30,7 +32,10 @@ from .simulator import (
     simulate_trajectory,
 )
 
-__version__ = "0.1.0"
+try:  # the version is written once, in pyproject.toml
+    __version__ = _metadata.version("granbayes")
+except _metadata.PackageNotFoundError:  # a source tree that is not installed
+    __version__ = "0+unknown"
 
 __all__ = [
     "COMMAND_NAMES",
