@@ -14,6 +14,7 @@ predicting (:func:`predict`, :class:`Prediction`) and criticising (:func:`diagno
 imported on first use, so ``import granbayes`` stays as fast as the simulator needs.
 """
 
+import importlib.metadata as _metadata
 from typing import TYPE_CHECKING
 
 from .commands import CommandProgram, Segment, build_command
@@ -47,7 +48,10 @@ if TYPE_CHECKING:
     from .sampler import SamplerSettings
     from .saved import SavedFit, load_fit
 
-__version__ = "0.1.0"
+try:  # the version is written once, in pyproject.toml
+    __version__ = _metadata.version("granbayes")
+except _metadata.PackageNotFoundError:  # a source tree that is not installed
+    __version__ = "0+unknown"
 
 #: Public names imported on first use (module of each), to keep ``import granbayes`` light.
 _LAZY = {

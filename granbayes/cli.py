@@ -67,6 +67,7 @@ from .errors import InputError
 from .experiment import COMMAND_NAMES, Experiment, load_batch_table, load_experiment
 from .forces import PARAMETER_NAMES, PARAMETERS, TERMS, parameter_term
 from .simulator import Status, simulate, simulate_table, simulate_trajectory
+from .synthetic import REFERENCE_DATA as _REFERENCE_DATA
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -558,8 +559,9 @@ def _demo_hard_ground(out: Path, experiment: Experiment) -> None:
     )
 
 
-#: The shipped SYNTHETIC reference data set (data/generate_reference.py).
-REFERENCE_DATA = Path(__file__).resolve().parents[1] / "data" / "reference"
+#: The shipped SYNTHETIC reference data set, installed with the package
+#: (:data:`granbayes.synthetic.REFERENCE_DATA`).
+REFERENCE_DATA = _REFERENCE_DATA
 
 
 def _demo_fit(out: Path, data: Path, seed: int) -> None:
@@ -705,7 +707,13 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         default="per_phi",
         help="independent laws per volume fraction, or quadratic in phi-phi_c",
     )
-    parser.add_argument("--noise", choices=("normal", "student_t"), default="normal")
+    parser.add_argument(
+        "--noise",
+        choices=("normal", "student_t"),
+        default="normal",
+        help="scatter of a jump about its simulated height: Gaussian (default) or Student-t "
+        "with --nu degrees of freedom (heavy tails: robust to outlying jumps)",
+    )
     parser.add_argument("--nu", type=float, default=4.0, help="Student-t degrees of freedom")
     parser.add_argument(
         "--sigma",
@@ -1333,7 +1341,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulate a jumping robot on granular media and infer the ground force.",
         epilog="Exit codes: 0 success, 2 bad input (nothing written), 3 a jump did not "
         f"finish (outputs written), {EXIT_UNCONVERGED} a fit or diagnosis did not converge "
-        "(results written; --allow-unconverged exits 0), 5 a campaign task failed.",
+        "(results written; --allow-unconverged exits 0), 5 a campaign task failed "
+        "(results written).",
     )
     parser.add_argument("--version", action="version", version=f"granbayes {__version__}")
     sub = parser.add_subparsers(dest="subcommand", metavar="SUBCOMMAND", required=True)

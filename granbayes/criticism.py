@@ -50,6 +50,7 @@ import xarray as xr
 from scipy import stats
 
 from . import datatree as gdt
+from ._provenance import environment
 from .experiment import Experiment
 from .fitting import FitConfig, FitResult, fit
 from .forces import TERMS, terms_of
@@ -947,4 +948,6 @@ def _record(
         },
         "seed": int(bank.seed),
         "data_source": bank.data_source,
+        # package versions and the machine: what bit-identical results require to match
+        **environment(),
     }

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import importlib.metadata
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +28,7 @@ import pandas as pd
 import xarray as xr
 
 from . import datatree as gdt
+from ._provenance import environment
 from .experiment import COMMAND_NAMES, Experiment
 from .forces import PARAMETERS, terms_of
 from .likelihood import JumpModel, Observations
@@ -484,16 +484,6 @@ def _replicate(part: FitPart, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return mean.reshape(c, d, -1), rep.reshape(c, d, -1)
 
 
-def _versions() -> dict[str, str]:
-    out = {}
-    for pkg in ("granbayes", "numpy", "scipy", "numba", "emcee", "arviz", "xarray"):
-        try:
-            out[pkg] = importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            out[pkg] = "unknown"
-    return out
-
-
 def data_hash(experiment: Experiment, table: pd.DataFrame) -> str:
     """SHA-256 of the experiment settings and the jumps table (provenance)."""
     h = hashlib.sha256()
@@ -639,7 +629,8 @@ def _assemble(
         prior, prior_pred = _prior_draws(parts, phis, n_jump, config, seed)
     attrs = {
         "seed": int(seed),
-        "versions": _versions(),
+        # package versions and the machine: what bit-identical results require to match
+        **environment(),
         "config": config.to_dict(),
         "priors": {k: dataclasses.asdict(v) for k, v in priors.items()},
         "data_sha256": data_hash(experiment, observed),
