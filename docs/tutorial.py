@@ -39,7 +39,7 @@ import numpy as np
 
 import granbayes as gb
 from granbayes.criticism import DiagnoseConfig, diagnose
-from granbayes.fit import FitConfig, fit
+from granbayes.fitting import FitConfig, fit
 from granbayes.sampler import SamplerSettings
 from granbayes.synthetic import make_jumps, write_experiment
 
@@ -159,31 +159,15 @@ az.plot_loo_pit(dt).savefig(OUT / "loo_pit.png")
 # %% [markdown]
 # ## 6. Predict a setting that was not measured
 #
-# **This version of granbayes has no `granbayes.predict` yet**, so this cell does by hand
-# what it will do: simulate the jump for posterior draws of the law (keeping the draws
-# joint) and add the fitted scatter for a new jump. The setting: a delayed stutter at
-# 10 Hz, a command and frequency absent from the data.
+# `gb.predict` simulates the jump for posterior draws of the law (keeping the draws joint)
+# and adds the fitted scatter for a new jump. The setting: a delayed stutter at 10 Hz, a
+# frequency absent from the data.
 
 # %%
-rng = np.random.default_rng(SEED)
-post = dt.posterior.to_dataset().sel(phi=PHI)
-n_draws = post.sizes["chain"] * post.sizes["draw"]
-pick = rng.integers(0, n_draws, size=400)
-draws = {name: post[name].values.reshape(n_draws)[pick] for name in ("k", "c_comp", "sigma_mm")}
+pred = gb.predict(result, "delayed_stutter", PHI, freq_hz=10.0, ci_prob=CI_PROB, rng=SEED)
+print(pred.table.T)
 new_setting = experiment.replace(freq_hz=10.0)
-simulated = gb.simulate(
-    "delayed_stutter",
-    PHI,
-    {"k": draws["k"], "c_comp": draws["c_comp"]},
-    experiment=new_setting,
-).height_mm
-new_jump = simulated + rng.normal(0.0, draws["sigma_mm"])
-lo, hi = (1 - CI_PROB) / 2, 1 - (1 - CI_PROB) / 2
-band = np.nanquantile(simulated, [lo, 0.5, hi])
-jump_band = np.nanquantile(new_jump, [lo, 0.5, hi])
 true_height = gb.simulate("delayed_stutter", PHI, TRUTH, experiment=new_setting)
-print(f"simulated height: {band[1]:.1f} mm [{band[0]:.1f}, {band[2]:.1f}] (90%)")
-print(f"a new jump:       {jump_band[1]:.1f} mm [{jump_band[0]:.1f}, {jump_band[2]:.1f}] (90%)")
 print(f"truth (noiseless): {true_height.height_mm[0]:.1f} mm")
 
 # %% [markdown]

@@ -27,7 +27,7 @@ from arviz_stats.base import array_stats
 
 from granbayes import load_experiment, load_jumps
 from granbayes._provenance import environment, reproducibility_key
-from granbayes.fit import FitConfig, fit
+from granbayes.fitting import FitConfig, fit
 from granbayes.sampler import SamplerSettings
 from granbayes.synthetic import REFERENCE_DATA
 
