@@ -27,16 +27,19 @@ from matplotlib.figure import Figure
 
 import granbayes
 from granbayes import COMMAND_NAMES, Experiment, InputError, load_experiment, load_jumps
+from granbayes._provenance import environment
 from granbayes.cli import staged_folder
-from granbayes.fit import FitConfig, FitResult, data_hash, fit
+from granbayes.fitting import FitConfig, FitResult, data_hash, fit
 from granbayes.likelihood import SETTING_COLUMNS  # per-row command settings of a jumps table
 from granbayes.report import markdown_table as _markdown_table
 from granbayes.report import source_label
 from granbayes.sampler import SamplerSettings
+from granbayes.synthetic import REFERENCE_DATA as _REFERENCE_DATA
 
 ROOT = Path(__file__).resolve().parents[1]
-#: The shipped SYNTHETIC reference data set (data/generate_reference.py, seed 20261121).
-REFERENCE_DATA = ROOT / "data" / "reference"
+#: The shipped SYNTHETIC reference data set (package data; data/generate_reference.py, seed
+#: 20261121).
+REFERENCE_DATA = _REFERENCE_DATA
 
 #: Interval reported everywhere in the analyses (equal-tailed).
 CI_PROB = 0.90
@@ -206,6 +209,7 @@ def main(
                 "fast": ctx.fast,
                 "interval": f"{CI_PROB:.0%} equal-tailed",
                 "granbayes": granbayes.__version__,
+                **environment(),  # package versions and the machine
                 "runtime_s": round(seconds, 1),
             }
             lines = [f"# {heading}", ""]

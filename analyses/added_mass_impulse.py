@@ -803,7 +803,7 @@ def analyse(ctx: common.Context) -> tuple[str, dict]:
     if "data/generate_reference.py" in ctx.label:
         body.append(
             "- **These are the SYNTHETIC reference data, whose documented generating law "
-            "(data/reference/TRUTH.md) has no added mass** (κ = 0; a compaction term "
+            "(granbayes/data/reference/TRUTH.md) has no added mass** (κ = 0; a compaction term "
             "instead): a κ found here is the fit absorbing compaction or the prior, not "
             "evidence for a jammed cone."
         )

@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 
 import _common as common
 from granbayes import COMMAND_NAMES
-from granbayes.fit import compare_commands
+from granbayes.fitting import compare_commands
 from granbayes.forces import PARAMETERS, terms_of
 
 NAME = "one_force_law"

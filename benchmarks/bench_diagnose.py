@@ -3,7 +3,7 @@
 Target (issue "model criticism"): <= 10 minutes wall on the 2-core machine (aim: 5).
 Runs the loop as the CLI does (baseline, candidates, forward selection, report) and
 records the wall time, the fits it needed and what it found against the documented truth
-(``data/reference/TRUTH.md``: depth + drag + compaction). Writes
+(``granbayes/data/reference/TRUTH.md``: depth + drag + compaction). Writes
 ``benchmarks/results/diagnose.json`` and ``.md``.
 
 Usage: ``python benchmarks/bench_diagnose.py [--seed N]``
@@ -23,9 +23,10 @@ from pathlib import Path
 from granbayes import load_experiment, load_jumps, simulate
 from granbayes.criticism import diagnose
 from granbayes.report import write_diagnosis_report
+from granbayes.synthetic import REFERENCE_DATA
 
 HERE = Path(__file__).resolve().parent
-DATA = HERE.parent / "data" / "reference"
+DATA = REFERENCE_DATA
 
 
 def main() -> None:
@@ -37,7 +38,7 @@ def main() -> None:
     experiment = load_experiment(DATA)
     table = load_jumps(DATA, experiment)
     t0 = time.perf_counter()
-    d = diagnose(experiment, table, seed=args.seed, data_source="data/reference")
+    d = diagnose(experiment, table, seed=args.seed, data_source="granbayes/data/reference")
     t_loop = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         write_diagnosis_report(d.to_json(), d.selected.datatree, Path(tmp))

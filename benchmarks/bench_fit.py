@@ -23,11 +23,12 @@ from pathlib import Path
 import numba
 
 from granbayes import load_experiment, load_jumps, simulate
-from granbayes.fit import FitConfig, fit
+from granbayes.fitting import FitConfig, fit
 from granbayes.report import write_fit_report
+from granbayes.synthetic import REFERENCE_DATA
 
 HERE = Path(__file__).resolve().parent
-DATA = HERE.parent / "data" / "reference"
+DATA = REFERENCE_DATA
 
 #: (label, function name fragment in the profile) rows of the time breakdown.
 BREAKDOWN = (

@@ -1,7 +1,7 @@
 """Benchmark and study: simulation-based calibration of ``fit`` on the reference design.
 
 The SBC of ``granbayes.fit`` (depth + drag, one law per volume fraction, the default
-priors) on the design of the SYNTHETIC reference data set ``data/reference`` (5 volume
+priors) on the design of the SYNTHETIC reference data set ``granbayes/data/reference`` (5 volume
 fractions x 5 commands x 2 frequencies x 5 trials; the heights themselves are not used):
 ``--replicates`` (default 100) prior draws, simulations and fits, run as a Dask campaign
 on a local cluster, once per worker count of ``--workers`` (default ``1,2``; numba
@@ -34,12 +34,13 @@ import numba
 
 from granbayes import load_experiment, load_jumps, simulate
 from granbayes.campaign import local_cluster_size
-from granbayes.fit import FitConfig
+from granbayes.fitting import FitConfig
 from granbayes.sampler import SamplerSettings
 from granbayes.sbc import run_sbc
+from granbayes.synthetic import REFERENCE_DATA
 
 HERE = Path(__file__).resolve().parent
-DATA = HERE.parent / "data" / "reference"
+DATA = REFERENCE_DATA
 RESULTS = HERE / "results"
 
 #: Sampler settings of ``granbayes fit`` (its CLI defaults): converged fits.
@@ -79,7 +80,7 @@ def main() -> None:
             n_rank_draws=args.rank_draws,
             n_workers=workers,
             resume=args.resume,
-            data_source="data/reference",
+            data_source="granbayes/data/reference",
             log=print,
         )
         tasks = res.campaign.tasks

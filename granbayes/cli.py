@@ -5,6 +5,14 @@ Subcommands
 ``granbayes simulate``
     One jump (``--command``, ``--phi``, ``--param NAME=VALUE``) or a batch table
     (``--batch IN.csv --out OUT.csv``).
+``granbayes fit``, ``granbayes diagnose``, ``granbayes sbc``
+    Bayesian fit, model criticism and simulation-based calibration of an experiment.
+``granbayes predict``
+    Predictive heights at new settings from a saved fit (``posterior.nc``).
+``granbayes report``
+    A fit's report re-rendered from its ``posterior.nc``.
+``granbayes priors``
+    The default priors as TOML (``--priors FILE`` reads it back).
 ``granbayes demo``
     The five jumps of the default robot and the hard-ground frequency sweep, with figures.
 
@@ -59,6 +67,7 @@ from .errors import InputError
 from .experiment import COMMAND_NAMES, Experiment, load_batch_table, load_experiment
 from .forces import PARAMETER_NAMES, PARAMETERS, TERMS, parameter_term
 from .simulator import Status, simulate, simulate_table, simulate_trajectory
+from .synthetic import REFERENCE_DATA as _REFERENCE_DATA
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -290,6 +299,12 @@ def _add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
         default=[],
         help=f"force-term parameter, repeatable; {required} required. Parameters: {units}",
     )
+    settings = parser.add_argument_group(
+        "command settings (override the experiment's; in --batch mode, the defaults of rows "
+        "that do not give them)"
+    )
+    for flag, metavar, text in _SETTING_FLAGS:
+        settings.add_argument(flag, metavar=metavar, type=str, help=text)
     one.add_argument("--json", action="store_true", help="print one JSON object")
     one.add_argument(
         "--trajectory", metavar="OUT.csv", type=Path, help="write the jump's time series"
@@ -309,17 +324,58 @@ def _add_simulate_arguments(parser: argparse.ArgumentParser) -> None:
         "--out",
         metavar="OUT.csv",
         type=Path,
-        help="batch output: the input plus height_mm and status",
+        help="batch output: the input plus height_mm and status ('-': standard output)",
     )
     batch.add_argument(
         "--threads", metavar="N", type=int, help="threads for the batch (default: all)"
     )
 
 
+#: Command-setting flags of ``simulate`` and ``predict``: flag, metavar, help.
+_SETTING_FLAGS = (
+    ("--freq-hz", "HZ", "actuator frequency [Hz], > 0"),
+    ("--amplitude-mm", "MM", "actuator amplitude A [mm] (half the stroke), > 0"),
+    ("--delay-ms", "MS", "hold of the delayed stutter [ms], >= 0"),
+    ("--settle-periods", "N", "hold of the delayed stutter preload [actuator periods], >= 0"),
+)
+
+
+def _setting_values(args: argparse.Namespace, lists: bool = False) -> dict[str, list[float]]:
+    """The command settings given as flags (``--freq-hz`` ...), checked: name -> values.
+
+    With ``lists``, each flag takes a comma-separated list of values.
+    """
+    out: dict[str, list[float]] = {}
+    for flag, _, _ in _SETTING_FLAGS:
+        name = flag[2:].replace("-", "_")
+        text = getattr(args, name)
+        if text is None:
+            continue
+        items = [t.strip() for t in text.split(",")] if lists else [text.strip()]
+        values = []
+        for item in items:
+            try:
+                value = float(item)
+            except ValueError:
+                raise UsageError(f"{flag} {text}: expected a number, got '{item}'") from None
+            zero_ok = name in ("delay_ms", "settle_periods")
+            if not math.isfinite(value) or value < 0 or (value == 0 and not zero_ok):
+                raise UsageError(f"{flag} {text}: must be {'>= 0' if zero_ok else '> 0'}")
+            values.append(value)
+        out[name] = values
+    return out
+
+
 def _run_simulate(args: argparse.Namespace) -> int:
     if args.batch is not None:
         return _simulate_batch(args)
     return _simulate_one(args)
+
+
+def _simulate_experiment(args: argparse.Namespace) -> Experiment:
+    """The experiment with the command-setting flags applied."""
+    settings = {k: v[0] for k, v in _setting_values(args).items()}
+    return _load_experiment(args.experiment).replace(**settings)
 
 
 def _simulate_one(args: argparse.Namespace) -> int:
@@ -332,11 +388,12 @@ def _simulate_one(args: argparse.Namespace) -> int:
     command = _check_command(args.command)
     phi = _check_phi(args.phi)
     params = parse_params(args.param)
+    _setting_values(args)
     if args.trajectory is not None:
         _check_target(args.trajectory, "--trajectory")
     if args.plot is not None:
         _check_target(args.plot, "--plot")
-    experiment = _load_experiment(args.experiment)
+    experiment = _simulate_experiment(args)
 
     result = simulate(command, phi, params, experiment=experiment)
     height = float(result.height_mm[0])
@@ -388,25 +445,33 @@ def _simulate_batch(args: argparse.Namespace) -> int:
     if given:
         raise UsageError(f"--{given[0]} cannot be used with --batch")
     if args.out is None:
-        raise UsageError("--batch needs --out OUT.csv")
+        raise UsageError("--batch needs --out OUT.csv (or --out - for standard output)")
     if args.threads is not None and args.threads < 1:
         raise UsageError(f"--threads {args.threads}: must be >= 1")
-    _check_target(args.out, "--out")
-    experiment = _load_experiment(args.experiment)
+    to_stdout = str(args.out) == "-"
+    if not to_stdout:
+        _check_target(args.out, "--out")
+    shown = "the output" if to_stdout else str(args.out)
+    _setting_values(args)
+    experiment = _simulate_experiment(args)
     table = load_batch_table(args.batch)
     if "height_mm" in table.columns:
         print(
             f"granbayes: note: {args.batch} already has a height_mm column; "
-            f"{args.out} gets the simulated heights in it",
+            f"{shown} gets the simulated heights in it",
             file=sys.stderr,
         )
     out = simulate_table(table, experiment, n_threads=args.threads)
-    _write_csv(out, args.out)
+    if to_stdout:
+        out.to_csv(sys.stdout, index=False)
+        sys.stdout.flush()
+    else:
+        _write_csv(out, args.out)
     failed = int((out["status"] != Status.OK.label).sum())
     if failed:
         print(
             f"granbayes: warning: {failed} of {len(out)} jumps did not finish "
-            f"(see the status column of {args.out})",
+            f"(see the status column of {shown})",
             file=sys.stderr,
         )
         return EXIT_FAILED_JUMP
@@ -494,14 +559,15 @@ def _demo_hard_ground(out: Path, experiment: Experiment) -> None:
     )
 
 
-#: The shipped SYNTHETIC reference data set (data/generate_reference.py).
-REFERENCE_DATA = Path(__file__).resolve().parents[1] / "data" / "reference"
+#: The shipped SYNTHETIC reference data set, installed with the package
+#: (:data:`granbayes.synthetic.REFERENCE_DATA`).
+REFERENCE_DATA = _REFERENCE_DATA
 
 
 def _demo_fit(out: Path, data: Path, seed: int) -> None:
     """Fit depth + drag per volume fraction to ``data`` and answer the uniqueness question."""
     from .experiment import load_jumps
-    from .fit import FitConfig, compare_commands, fit
+    from .fitting import FitConfig, compare_commands, fit
     from .report import load_truth, write_fit_report
 
     experiment = load_experiment(data)
@@ -641,7 +707,13 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         default="per_phi",
         help="independent laws per volume fraction, or quadratic in phi-phi_c",
     )
-    parser.add_argument("--noise", choices=("normal", "student_t"), default="normal")
+    parser.add_argument(
+        "--noise",
+        choices=("normal", "student_t"),
+        default="normal",
+        help="scatter of a jump about its simulated height: Gaussian (default) or Student-t "
+        "with --nu degrees of freedom (heavy tails: robust to outlying jumps)",
+    )
     parser.add_argument("--nu", type=float, default=4.0, help="Student-t degrees of freedom")
     parser.add_argument(
         "--sigma",
@@ -660,7 +732,7 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _fit_config(args: argparse.Namespace):
-    from .fit import FitConfig
+    from .fitting import FitConfig
     from .sampler import SamplerSettings
 
     _check_inference_arguments(args)
@@ -685,7 +757,7 @@ def _fit_config(args: argparse.Namespace):
 def run_fit(args: argparse.Namespace) -> int:
     """``granbayes fit``: validate everything, sample, write the report atomically."""
     from .experiment import load_jumps
-    from .fit import compare_commands, fit
+    from .fitting import compare_commands, fit
     from .priors import load_priors
     from .report import load_truth, write_fit_report
 
@@ -737,10 +809,13 @@ class ProgressBars:
     Each bar shows the run's label (volume fraction), steps against the cap, the largest
     autocorrelation time, R-hat across ensembles, the smallest ESS and whether the run has
     converged. Bars are drawn on stderr when it is a terminal and ``quiet`` is false.
+    With ``leave=False`` (``diagnose``: many fits) a run's bar is removed when the run
+    converges or reaches its step cap.
     """
 
-    def __init__(self, quiet: bool = False) -> None:
+    def __init__(self, quiet: bool = False, *, leave: bool = True) -> None:
         self.enabled = not quiet and sys.stderr.isatty()
+        self.leave = leave
         self.bars: dict = {}
 
     def __enter__(self) -> ProgressBars:
@@ -758,7 +833,7 @@ class ProgressBars:
 
         bar = self.bars.get(label)
         if bar is None:
-            bar = tqdm(total=info.max_steps, desc=label, unit="step", leave=True)
+            bar = tqdm(total=info.max_steps, desc=label, unit="step", leave=self.leave)
             self.bars[label] = bar
         bar.update(info.step - bar.n)
         bar.set_postfix(
@@ -770,6 +845,9 @@ class ProgressBars:
         if info.converged:
             bar.total = info.step
             bar.refresh()
+        if not self.leave and (info.converged or info.step >= info.max_steps):
+            bar.close()
+            del self.bars[label]
 
 
 # ----------------------------------------------------------------------------------------
@@ -824,7 +902,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
     table = load_jumps(args.data, experiment)
     priors = load_priors(args.priors) if args.priors else None
     log = (lambda *a, **k: None) if args.quiet else (lambda *a, **k: print(*a, **k, flush=True))
-    with staged_folder(args.out, resume=False) as work:
+    bars = ProgressBars(args.quiet, leave=False)
+    with staged_folder(args.out, resume=False) as work, bars:
         result = diagnose(
             experiment,
             table,
@@ -833,6 +912,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
             priors=priors,
             data_source=str(args.data),
             log=log,
+            progress=bars,
         )
         write_diagnosis_report(result.to_json(), result.selected.datatree, work)
     if not args.quiet:
@@ -895,7 +975,7 @@ def run_sbc_command(args: argparse.Namespace) -> int:
     """``granbayes sbc``: simulation-based calibration of fit as a Dask campaign."""
     from .campaign import CampaignError
     from .experiment import load_jumps
-    from .fit import FitConfig
+    from .fitting import FitConfig
     from .priors import load_priors
     from .sampler import SamplerSettings
 
@@ -971,6 +1051,208 @@ def _run_sbc_campaign(args, experiment, design, config, priors, log):
 
 
 # ----------------------------------------------------------------------------------------
+# granbayes predict
+# ----------------------------------------------------------------------------------------
+
+
+def _add_predict_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "posterior",
+        metavar="POSTERIOR",
+        type=Path,
+        help="posterior.nc written by granbayes fit (or the fit's output folder)",
+    )
+    parser.add_argument(
+        "--command",
+        metavar="NAME[,NAME]",
+        required=True,
+        help=f"jump command(s), comma-separated: {', '.join(COMMAND_NAMES)}",
+    )
+    parser.add_argument(
+        "--phi",
+        metavar="PHI[,PHI]",
+        required=True,
+        help="volume fraction(s), comma-separated (a per_phi fit: fitted ones only)",
+    )
+    settings = parser.add_argument_group(
+        "command settings (comma-separated lists; default: the fit's experiment settings)"
+    )
+    for flag, metavar, text in _SETTING_FLAGS:
+        settings.add_argument(flag, metavar=f"{metavar}[,{metavar}]", type=str, help=text)
+    parser.add_argument(
+        "--draws",
+        type=int,
+        default=1000,
+        help="posterior draws to simulate (default 1000; 0: all)",
+    )
+    parser.add_argument(
+        "--ci-prob",
+        type=float,
+        default=0.9,
+        help="probability of the equal-tailed intervals (default 0.9)",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=0, help="seed of the draw selection and noise (default 0)"
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument(
+        "--out", metavar="OUT.csv", type=Path, help="also write the predictions as CSV"
+    )
+
+
+def _run_predict(args: argparse.Namespace) -> int:
+    from .prediction import predict
+    from .saved import load_fit
+
+    commands = [_check_command(c.strip()) for c in args.command.split(",") if c.strip()]
+    phis = [_check_phi(p.strip()) for p in args.phi.split(",") if p.strip()]
+    if not commands or not phis:
+        raise UsageError("--command and --phi need at least one value each")
+    settings = _setting_values(args, lists=True)
+    if args.draws < 0:
+        raise UsageError(f"--draws {args.draws}: must be >= 0 (0: all draws)")
+    if not 0.0 < args.ci_prob < 1.0:
+        raise UsageError(f"--ci-prob {args.ci_prob}: must be in (0, 1)")
+    if args.out is not None:
+        _check_target(args.out, "--out")
+    saved = load_fit(args.posterior)
+    try:
+        result = predict(
+            saved,
+            commands,
+            phis,
+            **settings,
+            n_draws=args.draws or None,
+            ci_prob=args.ci_prob,
+            rng=args.seed,
+        )
+    except ValueError as exc:  # name the options the user typed
+        message = str(exc).replace("fit with phi_mode='quadratic'", "fit with --phi-mode quadratic")
+        raise UsageError(message) from None
+    if args.out is not None:
+        _write_csv(result.table, args.out)
+    if args.json:
+        record = result.to_json() | {
+            "posterior": str(saved.source),
+            "terms": list(saved.config.terms),
+            "phi_mode": saved.config.phi_mode,
+            "seed": args.seed,
+            "granbayes_version": __version__,
+        }
+        print(json.dumps(record, allow_nan=False))
+        return EXIT_OK
+    pct = f"{args.ci_prob:.0%}"
+    print(
+        f"Predicted jump heights [mm] from {saved.source} ({' + '.join(saved.config.terms)}, "
+        f"{saved.config.phi_mode}): median [{pct} interval] of the simulated height and of a "
+        "new jump (plus the fitted scatter)"
+    )
+    for r in result.table.itertuples():
+        setting = (
+            f"{r.freq_hz:g} Hz, A = {r.amplitude_mm:g} mm, delay {r.delay_ms:g} ms, "
+            f"settle {r.settle_periods:g} T"
+        )
+        failed = f"; {r.n_failed} of {r.n_draws} failed" if r.n_failed else ""
+        print(
+            f"  {r.command:<24} phi={r.phi:<6g} {setting}: simulated "
+            f"{r.height_sim_mm_median:.1f} [{r.height_sim_mm_lo:.1f}, {r.height_sim_mm_hi:.1f}]"
+            f", new jump {r.height_mm_median:.1f} [{r.height_mm_lo:.1f}, "
+            f"{r.height_mm_hi:.1f}]{failed}"
+        )
+    for note in result.notes:
+        print(f"granbayes: note: {note}", file=sys.stderr)
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------
+# granbayes report
+# ----------------------------------------------------------------------------------------
+
+
+def _add_report_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "posterior",
+        metavar="POSTERIOR",
+        type=Path,
+        help="posterior.nc written by granbayes fit (or the fit's output folder); a "
+        "uniqueness.csv next to it is included",
+    )
+    parser.add_argument(
+        "--out",
+        metavar="DIR",
+        type=Path,
+        required=True,
+        help="output folder (replaced only when the report is complete; not the folder "
+        "holding POSTERIOR)",
+    )
+    parser.add_argument(
+        "--truth", type=Path, help="truth.toml of synthetic data, overlaid on figures"
+    )
+    parser.add_argument(
+        "--no-diagnostics-plots", action="store_true", help="skip the trace and rank plots"
+    )
+    parser.add_argument("--quiet", action="store_true", help="do not print the summary")
+
+
+def _run_report(args: argparse.Namespace) -> int:
+    from .report import load_truth, write_fit_report
+    from .saved import load_fit
+
+    source = args.posterior / "posterior.nc" if args.posterior.is_dir() else args.posterior
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"--out {args.out}: exists and is not a folder")
+    if args.out.resolve() == source.resolve().parent:
+        raise UsageError(
+            f"--out {args.out}: is the folder holding {source.name}; write the report "
+            "elsewhere (the output folder is replaced)"
+        )
+    saved = load_fit(source)
+    truth = load_truth(args.truth) if args.truth else None
+    uniqueness_csv = source.parent / "uniqueness.csv"
+    uniqueness = pd.read_csv(uniqueness_csv) if uniqueness_csv.is_file() else None
+    with staged_folder(args.out, resume=False) as work:
+        write_fit_report(
+            saved.datatree,
+            work,
+            truth=truth,
+            uniqueness=uniqueness,
+            diagnostics_plots=not args.no_diagnostics_plots,
+        )
+    if not args.quiet:
+        print((args.out / "summary.md").read_text())
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------
+# granbayes priors
+# ----------------------------------------------------------------------------------------
+
+
+def _add_priors_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--terms",
+        help=f"comma-separated force terms whose parameters to print (default: every "
+        f"parameter; available: {', '.join(TERMS)}); the scatter sigma_mm is always printed",
+    )
+
+
+def _run_priors(args: argparse.Namespace) -> int:
+    from .forces import terms_of
+    from .priors import NOISE_PARAMETERS, priors_toml
+
+    if args.terms is None:
+        names = None
+    else:
+        try:
+            terms = terms_of(t.strip() for t in args.terms.split(",") if t.strip())
+        except ValueError as exc:
+            raise UsageError(f"--terms {args.terms}: {exc}") from None
+        names = [p.name for t in terms for p in TERMS[t].parameters] + list(NOISE_PARAMETERS)
+    print(priors_toml(names=names), end="")
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------------------
 # Registry and entry point
 # ----------------------------------------------------------------------------------------
 
@@ -1015,6 +1297,35 @@ SUBCOMMANDS: list[Subcommand] = [
         "OUT/ranks.csv, OUT/summary.json, OUT/summary.md and OUT/sbc_ecdf.png.",
     ),
     Subcommand(
+        "predict",
+        "predictive jump heights at new settings from a fit's posterior",
+        _add_predict_arguments,
+        _run_predict,
+        description="Simulate the jump for posterior draws of a saved fit (posterior.nc) at "
+        "the given command(s), volume fraction(s) and settings, and print the median and "
+        "equal-tailed interval of the simulated height and of a new jump (plus the fitted "
+        "scatter). A per_phi fit predicts at its fitted volume fractions only; a quadratic "
+        "fit anywhere. Comma-separated values give every combination.",
+    ),
+    Subcommand(
+        "report",
+        "re-render a fit's report from its posterior.nc",
+        _add_report_arguments,
+        _run_report,
+        description="Write the summary, tables and figures of a fit (as granbayes fit "
+        "writes them) into OUT from a saved posterior.nc, and the uniqueness.csv next to it "
+        "if there is one.",
+    ),
+    Subcommand(
+        "priors",
+        "print the default priors as TOML (the format of --priors FILE)",
+        _add_priors_arguments,
+        _run_priors,
+        description="Print the default prior of every parameter (or those of --terms) as "
+        "TOML, each with its reason as a comment: a file to edit and pass back with "
+        "granbayes fit --priors FILE.",
+    ),
+    Subcommand(
         "demo",
         "simulate the five jumps and the hard-ground sweep; write figures",
         _add_demo_arguments,
@@ -1029,7 +1340,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="granbayes",
         description="Simulate a jumping robot on granular media and infer the ground force.",
         epilog="Exit codes: 0 success, 2 bad input (nothing written), 3 a jump did not "
-        "finish (outputs written).",
+        f"finish (outputs written), {EXIT_UNCONVERGED} a fit or diagnosis did not converge "
+        "(results written; --allow-unconverged exits 0), 5 a campaign task failed "
+        "(results written).",
     )
     parser.add_argument("--version", action="version", version=f"granbayes {__version__}")
     sub = parser.add_subparsers(dest="subcommand", metavar="SUBCOMMAND", required=True)
@@ -1056,7 +1369,8 @@ def main(argv: list[str] | None = None) -> int:
     Returns
     -------
     int
-        Exit code: 0 success, 2 bad input, 3 a jump did not finish.
+        Exit code (module docstring): 0 success, 2 bad input, 3 a jump did not finish,
+        4 a sampler run did not converge, 5 a campaign task failed.
     """
     parser = build_parser()
     try:

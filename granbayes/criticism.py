@@ -39,6 +39,7 @@ the choice among candidates; the calibration study measures that bias.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -49,12 +50,14 @@ import xarray as xr
 from scipy import stats
 
 from . import datatree as gdt
+from ._provenance import environment
 from .experiment import Experiment
-from .fit import FitConfig, FitResult, fit
+from .fitting import FitConfig, FitResult, fit
 from .forces import TERMS, terms_of
 from .likelihood import Observations
 from .priors import Prior
-from .sampler import SamplerSettings
+from .sampler import ProgressInfo, SamplerSettings
+from .saved import SavedFit
 
 __all__ = [
     "CELL_KEYS",
@@ -62,9 +65,11 @@ __all__ = [
     "DiagnoseConfig",
     "Diagnosis",
     "FitBank",
+    "IDENTIFIABILITY_LEVELS",
     "decide",
     "describe_cell",
     "diagnose",
+    "identifiability_table",
     "misfit_threshold",
     "residual_table",
     "rmse_mm",
@@ -136,7 +141,12 @@ def _cell_keys(observed: pd.DataFrame) -> list[str]:
     return [k for k in CELL_KEYS if k in observed.columns]
 
 
-def residual_table(dt: xr.DataTree | FitResult) -> pd.DataFrame:
+def _tree(fit: xr.DataTree | FitResult | SavedFit) -> xr.DataTree:
+    """The DataTree of a fit given as a DataTree, ``FitResult`` or ``SavedFit``."""
+    return fit if isinstance(fit, xr.DataTree) else fit.datatree
+
+
+def residual_table(dt: xr.DataTree | FitResult | SavedFit) -> pd.DataFrame:
     """Residuals of a fitted law per cell of repeated jumps, with significance.
 
     A cell is one command at one volume fraction and one setting (``CELL_KEYS``: frequency,
@@ -156,7 +166,7 @@ def residual_table(dt: xr.DataTree | FitResult) -> pd.DataFrame:
 
     Parameters
     ----------
-    dt : xarray.DataTree or FitResult
+    dt : xarray.DataTree, FitResult or SavedFit
         A fit (its ``observed_data`` and ``posterior_predictive`` groups are read).
 
     Returns
@@ -164,7 +174,7 @@ def residual_table(dt: xr.DataTree | FitResult) -> pd.DataFrame:
     pandas.DataFrame
         One row per cell, worst (largest |z|) first.
     """
-    dt = dt.datatree if isinstance(dt, FitResult) else dt
+    dt = _tree(dt)
     obs = dt["observed_data"].to_dataset()
     pp = dt["posterior_predictive"].to_dataset()
     y = obs["height_mm"].values
@@ -223,6 +233,82 @@ def residual_table(dt: xr.DataTree | FitResult) -> pd.DataFrame:
     return table.reindex(order).reset_index(drop=True)
 
 
+#: Verdicts on the posterior-to-prior contraction ``1 - var_post / var_prior``: the first
+#: level whose upper bound the contraction stays below.
+IDENTIFIABILITY_LEVELS: tuple[tuple[float, str], ...] = (
+    (0.1, "not identified: posterior ~ prior"),
+    (0.5, "weakly identified: the prior still shapes the posterior"),
+    (0.9, "identified"),
+    (math.inf, "well identified: the data dominate the prior"),
+)
+
+
+def identifiability_table(
+    dt: xr.DataTree | FitResult | SavedFit, var_names: Sequence[str] | None = None
+) -> pd.DataFrame:
+    """What the data determine: posterior-to-prior contraction per parameter and phi.
+
+    The contraction ``1 - var_post / var_prior`` (Schad, Betancourt & Vasishth 2021) is 0
+    when the posterior is as wide as the prior (the data say nothing about the parameter)
+    and 1 when the data pin it down. Variances are taken in the coordinate in which the
+    prior is uniform or normal: ``log(value)`` for log-scale priors (``k``, ``r_unload``,
+    ``sigma_mm``), the value itself otherwise, so a contraction does not depend on
+    whether a stiffness is written in N/m or kN/m.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree, FitResult or SavedFit
+        A fit with ``prior`` and ``posterior`` groups (``FitConfig.n_prior_draws > 0``)
+        and its ``priors`` attribute.
+    var_names : sequence of str, optional
+        Parameters (default: the fit's force parameters and ``sigma_mm``).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per parameter and volume fraction: ``parameter``, ``phi``, ``scale``
+        (``log`` or ``linear``), ``prior_sd`` and ``posterior_sd`` (in that scale),
+        ``contraction`` and ``verdict`` (:data:`IDENTIFIABILITY_LEVELS`). Empty if the fit
+        stored no prior draws.
+    """
+    dt = _tree(dt)
+    columns = ["parameter", "phi", "scale", "prior_sd", "posterior_sd", "contraction", "verdict"]
+    if "prior" not in dt.children:
+        return pd.DataFrame(columns=columns)
+    priors = {k: Prior(**v) for k, v in json.loads(dt.attrs["priors"]).items()}
+    if var_names is None:
+        var_names = [*json.loads(dt.attrs["parameters"]), "sigma_mm"]
+    prior, post = dt["prior"].to_dataset(), dt["posterior"].to_dataset()
+    rows = []
+    for name in var_names:
+        if name not in prior or name not in post:
+            continue
+        log = priors[name].log_scale if name in priors else False
+        for phi in post["phi"].values:
+            a = prior[name].sel(phi=phi).values.ravel()
+            b = post[name].sel(phi=phi).values.ravel()
+            a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+            if log:
+                a, b = np.log(a[a > 0]), np.log(b[b > 0])
+            if a.size < 2 or b.size < 2:
+                continue
+            var_prior, var_post = float(np.var(a, ddof=1)), float(np.var(b, ddof=1))
+            c = 1.0 - var_post / var_prior if var_prior > 0 else float("nan")
+            verdict = next((t for bound, t in IDENTIFIABILITY_LEVELS if c < bound), "undetermined")
+            rows.append(
+                {
+                    "parameter": name,
+                    "phi": float(phi),
+                    "scale": "log" if log else "linear",
+                    "prior_sd": math.sqrt(var_prior),
+                    "posterior_sd": math.sqrt(var_post),
+                    "contraction": c,
+                    "verdict": verdict,
+                }
+            )
+    return pd.DataFrame(rows, columns=columns)
+
+
 def misfit_threshold(residuals: pd.DataFrame, family_alpha: float) -> float:
     """|z| beyond which a cell is misfit, for a family-wise false-alarm rate ``family_alpha``.
 
@@ -251,9 +337,9 @@ def describe_cell(row: Mapping) -> str:
     )
 
 
-def rmse_mm(dt: xr.DataTree | FitResult) -> float:
+def rmse_mm(dt: xr.DataTree | FitResult | SavedFit) -> float:
     """Root-mean-square of observed minus posterior-mean simulated height [mm]."""
-    dt = dt.datatree if isinstance(dt, FitResult) else dt
+    dt = _tree(dt)
     y = dt["observed_data"]["height_mm"].values
     sim = dt["posterior_predictive"]["height_sim_mm"].values.reshape(-1, len(y)).mean(axis=0)
     return float(np.sqrt(np.mean((y - sim) ** 2)))
@@ -305,6 +391,9 @@ class FitBank:
     data_source : str
     log : callable
         Progress messages.
+    progress : callable, optional
+        ``progress(label, info)`` after every sampler chunk of every fit; the label names
+        the law and the run (``"depth + drag, phi=0.602"``).
     """
 
     def __init__(
@@ -316,9 +405,11 @@ class FitBank:
         seed: int,
         data_source: str,
         log: Callable[..., None],
+        progress: Callable[[str, ProgressInfo], None] | None = None,
     ) -> None:
         self.experiment, self.table, self.config = experiment, table, config
         self.priors, self.seed, self.data_source, self.log = priors, seed, data_source, log
+        self.progress = progress
         self.fits: dict[tuple[str, ...], FitResult] = {}
         self.loos: dict[tuple[str, ...], dict] = {}
         self.records: dict[tuple[str, ...], FitRecord] = {}
@@ -336,6 +427,13 @@ class FitBank:
         code = sum((i + 1) * (list(TERMS).index(t) + 1) for i, t in enumerate(key))
         return int(np.random.SeedSequence([self.seed, code, attempt]).generate_state(1)[0])
 
+    def _progress(self, key: tuple[str, ...], what: str = ""):
+        """The fit's ``progress`` callback, its labels prefixed with the law."""
+        if self.progress is None:
+            return None
+        law = " + ".join(key) + what
+        return lambda label, info: self.progress(f"{law}, {label}", info)
+
     def _run(self, key, parent: tuple[str, ...] | None, attempt: int) -> FitResult:
         warm = self.fits[parent].datatree if parent is not None else None
         return fit(
@@ -346,6 +444,7 @@ class FitBank:
             priors=self.priors,
             data_source=self.data_source,
             warm_start=warm,
+            progress=self._progress(key, f" (rerun {attempt})" if attempt else ""),
         )
 
     def get(self, terms: Sequence[str], parent: Sequence[str] | None = None) -> FitResult:
@@ -672,6 +771,7 @@ def diagnose(
     priors: Mapping[str, Prior] | None = None,
     data_source: str = "",
     log: Callable[..., None] = print,
+    progress: Callable[[str, ProgressInfo], None] | None = None,
 ) -> Diagnosis:
     """Run the criticism loop (module docstring) on measured jumps.
 
@@ -691,6 +791,9 @@ def diagnose(
         Where the data came from.
     log : callable
         Progress messages (``print`` by default; pass ``lambda *a: None`` to silence).
+    progress : callable, optional
+        ``progress(label, info)`` (:class:`granbayes.sampler.ProgressInfo`) after every
+        sampler chunk of every fit, labelled by law and run (one bar per fit run).
 
     Returns
     -------
@@ -698,7 +801,7 @@ def diagnose(
     """
     cfg = config or DiagnoseConfig()
     table = table.reset_index(drop=True)
-    bank = FitBank(experiment, table, cfg, priors, seed, data_source, log)
+    bank = FitBank(experiment, table, cfg, priors, seed, data_source, log, progress)
     pointwise = _Pointwise(bank)
     base = terms_of(cfg.baseline)
     log(f"Baseline: {' + '.join(base)}")
@@ -845,4 +948,6 @@ def _record(
         },
         "seed": int(bank.seed),
         "data_source": bank.data_source,
+        # package versions and the machine: what bit-identical results require to match
+        **environment(),
     }

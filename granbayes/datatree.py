@@ -26,7 +26,11 @@ __all__ = [
     "loo",
     "elpd_difference",
     "compare",
+    "loo_pit",
+    "pit_uniformity",
     "plot_diagnostics",
+    "plot_loo_pit",
+    "plot_prior_posterior",
     "plot_sbc_ecdf",
     "sbc_uniformity",
     "write_datatree",
@@ -285,6 +289,203 @@ def plot_diagnostics(
         plt.close("all")
         written.append(path)
     return written
+
+
+def loo_pit(dt: xr.DataTree) -> np.ndarray:
+    """LOO-PIT values of the measured heights (``arviz.loo_pit``, PSIS-LOO weights).
+
+    ``p(new height <= measured height | all other jumps)`` per jump: uniform on (0, 1) for
+    a calibrated predictive distribution. Needs the ``posterior_predictive``,
+    ``log_likelihood`` and ``observed_data`` groups (variable ``height_mm``).
+
+    Returns
+    -------
+    ndarray, shape (jump,)
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pit = az.loo_pit(_pit_tree(dt), var_names=["height_mm"])
+    return np.asarray(pit["height_mm"].values, dtype=float)
+
+
+def _pit_tree(dt: xr.DataTree) -> xr.DataTree:
+    """The groups LOO-PIT needs, with only ``height_mm`` in the predictive group."""
+    return xr.DataTree.from_dict(
+        {
+            "posterior": dt["posterior"].to_dataset(),
+            "log_likelihood": dt["log_likelihood"].to_dataset(),
+            "observed_data": dt["observed_data"].to_dataset(),
+            "posterior_predictive": dt["posterior_predictive"].to_dataset()[["height_mm"]],
+        }
+    )
+
+
+def pit_uniformity(pit: np.ndarray) -> float:
+    """p-value of ArviZ's uniformity test (``pot_c``, arviz-stats) of PIT values in (0, 1)."""
+    return float(sbc_uniformity({"pit": np.asarray(pit, dtype=float)[:, None]}, [0.0])["pit"][0])
+
+
+def plot_loo_pit(
+    dt: xr.DataTree, path: Path, *, band_prob: float = 0.95, seed: int = 0, title: str = ""
+) -> Path:
+    """LOO-PIT calibration plot of the jump heights (``arviz_plots.plot_loo_pit``).
+
+    The difference between the ECDF of the LOO-PIT values and the uniform CDF, with
+    ArviZ's simultaneous envelope and ``pot_c`` p-value; points that drive a departure are
+    highlighted. Above zero in the middle (an S shape): the predictive distribution is too
+    wide; below: too narrow; a shift at one end: biased predictions.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit's DataTree.
+    path : Path
+        PNG file to write.
+    band_prob : float
+        Probability of the grey simultaneous band of a uniform sample of the same size
+        (``arviz_stats.ecdf_utils.ecdf_pit``).
+    seed : int
+        Seed of the band's simulation.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    Path
+    """
+    import arviz_plots as azp
+    from arviz_stats.ecdf_utils import ecdf_pit
+    from matplotlib import pyplot as plt
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pc = azp.plot_loo_pit(
+            _pit_tree(dt),
+            var_names=["height_mm"],
+            backend="matplotlib",
+            figure_kwargs={"figsize": (6.4, 3.6)},
+        )
+    fig = pc.viz["figure"].item()
+    n = dt["observed_data"].sizes["jump"]
+    x, _, lower, upper = ecdf_pit(
+        np.linspace(0.0, 1.0, n), band_prob, 1000, rng=np.random.default_rng(seed)
+    )
+    for ax in fig.axes:
+        ax.fill_between(x, lower - x, upper - x, step="post", color="0.75", alpha=0.5, lw=0)
+        ax.set_title("")
+        ax.set_xlabel("LOO-PIT of the jump height H [-] (uniform if calibrated)")
+        ax.set_ylabel("ECDF − uniform CDF [-]")
+    fig.suptitle(
+        (title + "\n" if title else "")
+        + f"LOO-PIT calibration of {n} jumps; grey: {band_prob:.0%} simultaneous band "
+        "of a calibrated model",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+    return Path(path)
+
+
+class _UnitLabeller:
+    """ArviZ labeller: variable names with their units, ``phi = <value>`` for selections."""
+
+    def __new__(cls, labels: Mapping[str, str]):
+        from arviz_base.labels import BaseLabeller
+
+        class Labeller(BaseLabeller):
+            def var_name_to_str(self, var_name):
+                return labels.get(var_name, var_name)
+
+            def dim_coord_to_str(self, dim, coord_val, coord_idx):
+                return f"φ = {coord_val:g}" if dim == "phi" else f"{dim} = {coord_val}"
+
+        return Labeller()
+
+
+def plot_prior_posterior(
+    dt: xr.DataTree,
+    var_names: Sequence[str],
+    path: Path,
+    *,
+    labels: Mapping[str, str] | None = None,
+    log10: Sequence[str] = (),
+    title: str = "",
+) -> Path:
+    """Prior and posterior marginals per parameter and volume fraction
+    (``arviz_plots.plot_prior_posterior``), written as a PNG file.
+
+    One row per parameter, one column per volume fraction. A posterior as wide as its
+    prior means the data do not determine the parameter.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit's DataTree with ``prior`` and ``posterior`` groups.
+    var_names : sequence of str
+        Parameters to show.
+    path : Path
+        PNG file to write.
+    labels : mapping of str to str, optional
+        Panel label (with units) per parameter, e.g. ``"log₁₀ k (k in N/m)"``.
+    log10 : sequence of str
+        Parameters shown as ``log10`` of their value (log-uniform priors), so that the
+        prior is flat and a narrow posterior stays visible.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    Path
+    """
+    import arviz_plots as azp
+    from matplotlib import pyplot as plt
+    from matplotlib.lines import Line2D
+
+    names = [n for n in var_names if n in dt["prior"].data_vars and n in dt["posterior"].data_vars]
+    groups = {}
+    for group in ("prior", "posterior"):
+        ds = dt[group].to_dataset()[names]
+        for n in names:
+            if n in log10:
+                ds[n] = np.log10(ds[n])
+        groups[group] = ds
+    tree = xr.DataTree.from_dict(groups)
+    n_phi = tree["posterior"].sizes.get("phi", 1)
+    shown = {n: (labels or {}).get(n, f"log₁₀ {n}" if n in log10 else n) for n in names}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pc = azp.plot_prior_posterior(
+            tree,
+            var_names=names,
+            backend="matplotlib",
+            labeller=_UnitLabeller(shown),
+            col_wrap=n_phi,
+            figure_kwargs={
+                "figsize": (3.0 * n_phi + 0.6, 2.3 * len(names) + 1.2),
+                "layout": "constrained",
+            },
+        )
+    fig = pc.viz["figure"].item()
+    for legend in fig.legends:
+        legend.remove()
+    for ax in fig.axes:
+        ax.title.set_fontsize(9)
+        ax.tick_params(labelsize=8)
+    handles = [
+        Line2D([], [], color=line.get_color(), label=group)
+        for line, group in zip(fig.axes[0].get_lines()[:2], ("prior", "posterior"), strict=False)
+    ]
+    fig.legend(handles=handles, loc="outside lower center", ncols=2, fontsize=8)
+    fig.suptitle(
+        (title + "\n" if title else "")
+        + "Prior and posterior marginal density per volume fraction\n"
+        + "(a posterior as wide as its prior: the data do not determine the parameter)",
+        fontsize=9,
+    )
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+    return Path(path)
 
 
 def _sbc_dataset(pit: Mapping[str, np.ndarray], phis: Sequence[float]) -> xr.Dataset:

@@ -29,6 +29,7 @@ from .errors import InputError
 __all__ = [
     "BATCH_EXPERIMENT_COLUMNS",
     "BATCH_FORCE_COLUMNS",
+    "BATCH_REQUIRED_FORCE_COLUMNS",
     "COMMAND_NAMES",
     "CommandSettings",
     "Experiment",
@@ -261,6 +262,11 @@ _JUMP_SETTING_COLUMNS: tuple[str, ...] = ("freq_hz", "amplitude_mm", "delay_ms",
 
 _JUMP_REQUIRED: tuple[str, ...] = ("phi", "command", "height_mm")
 _BATCH_REQUIRED: tuple[str, ...] = ("command", "phi")
+
+#: Force parameters a batch table must have a column of: those without an "off" value
+#: (``granbayes.forces``: the depth term's stiffness ``k`` [N/m], part of every law). An
+#: empty cell is simulated and fails alone, with its status, like ``k = 0``.
+BATCH_REQUIRED_FORCE_COLUMNS: tuple[str, ...] = ("k",)
 
 
 # --------------------------------------------------------------------------------------
@@ -852,8 +858,10 @@ def load_batch_table(path: str | Path) -> pd.DataFrame:
     Parameters
     ----------
     path : str or Path
-        A CSV file. Required columns: ``command``, ``phi`` [-]. Optional numeric columns:
-        the force parameters :data:`BATCH_FORCE_COLUMNS` (``k``, ``c_d``, ``kappa``,
+        A CSV file. Required columns: ``command``, ``phi`` [-] and ``k`` [N/m]
+        (:data:`BATCH_REQUIRED_FORCE_COLUMNS`; an empty cell makes that row fail with
+        status ``failed:bad-input``). Optional numeric columns:
+        the other force parameters of :data:`BATCH_FORCE_COLUMNS` (``c_d``, ``kappa``,
         ``r_unload``, ``k2``, ``b``, ``c_comp``; units of ``docs/physics-model.md``) and the per-row
         experiment overrides :data:`BATCH_EXPERIMENT_COLUMNS` (units of
         ``experiment.toml``).
@@ -869,13 +877,23 @@ def load_batch_table(path: str | Path) -> pd.DataFrame:
     ------
     InputError
         At the first problem in file order, naming the file, the 1-based data row and the
-        column: unreadable, malformed or empty file, header only, missing required column,
-        unknown command, ``phi`` not a number in (0, 1), a non-numeric or non-finite value
-        in an optional numeric column, a force parameter < 0 (``r_unload`` < 1), or an
-        experiment override outside the range allowed by :func:`load_experiment`.
+        column: unreadable, malformed or empty file, header only, missing required column
+        (``command``, ``phi``, ``k``), unknown command, ``phi`` not a number in (0, 1), a
+        non-numeric or non-finite value in an optional numeric column, a force parameter
+        < 0 (``r_unload`` < 1), or an experiment override outside the range allowed by
+        :func:`load_experiment`.
     """
     table = _read_csv(_file_in(path, None))
     table.require(_BATCH_REQUIRED)
+    for name in BATCH_REQUIRED_FORCE_COLUMNS:
+        if name not in table.columns:
+            raise InputError(
+                f"missing required column{_suggest(name, table.columns)}: every force law "
+                f"has the depth term, whose stiffness {name} [N/m] has no default; the file "
+                f"has: {', '.join(table.columns)}",
+                file=table.file,
+                column=name,
+            )
     converted: dict[str, object] = {
         "command": table.choices("command", COMMAND_NAMES),
         "phi": table.floats("phi", _FRACTION, required=True),

@@ -465,11 +465,33 @@ class JumpModel:
             simulation failed).
         """
         mean, sigma, _ = self.mean_and_sigma(u, observations)
+        return mean, self.add_noise(mean, sigma, rng)
+
+    def add_noise(
+        self, mean_mm: np.ndarray, sigma_mm: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
+        """One draw of a measured height [mm] per simulated height, by the noise family.
+
+        Parameters
+        ----------
+        mean_mm : ndarray
+            Simulated heights.
+        sigma_mm : ndarray
+            Noise scale of every height (broadcast against ``mean_mm``).
+        rng : numpy.random.Generator
+            Source of the noise.
+
+        Returns
+        -------
+        ndarray
+            ``mean_mm + sigma_mm * eps`` with ``eps`` standard normal or Student-t(``nu``).
+        """
+        mean_mm = np.asarray(mean_mm, dtype=float)
         if self.noise == "normal":
-            eps = rng.standard_normal(mean.shape)
+            eps = rng.standard_normal(mean_mm.shape)
         else:
-            eps = rng.standard_t(self.nu, mean.shape)
-        return mean, mean + sigma * eps
+            eps = rng.standard_t(self.nu, mean_mm.shape)
+        return mean_mm + sigma_mm * eps
 
     def __call__(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Log-posterior and pointwise log-likelihood of walker positions.

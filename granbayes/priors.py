@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -31,7 +31,7 @@ from scipy.stats import truncnorm
 from .errors import InputError
 from .forces import PARAMETERS
 
-__all__ = ["Prior", "default_priors", "load_priors", "NOISE_PARAMETERS"]
+__all__ = ["Prior", "default_priors", "load_priors", "priors_toml", "NOISE_PARAMETERS"]
 
 _DISTS = ("uniform", "loguniform", "normal", "lognormal")
 
@@ -290,3 +290,40 @@ def _outside_allowed(name: str, prior: Prior) -> str | None:
         if problem:
             return f"prior {end} bound outside the allowed values: {problem}"
     return None
+
+
+def priors_toml(
+    priors: Mapping[str, Prior] | None = None, names: Sequence[str] | None = None
+) -> str:
+    """Priors as TOML that :func:`load_priors` reads back, each with its reason as a comment.
+
+    Parameters
+    ----------
+    priors : mapping of str to Prior, optional
+        The priors (default: :func:`default_priors`).
+    names : sequence of str, optional
+        Parameters to write, in order (default: all of ``priors``).
+
+    Returns
+    -------
+    str
+        One table per parameter (``[k]`` with ``dist``, ``lower``, ``upper`` and, for the
+        normal families, ``mu`` and ``sigma``), preceded by a comment with its unit and
+        motivation.
+    """
+    priors = dict(priors if priors is not None else default_priors())
+    names = list(priors) if names is None else list(names)
+    lines = [
+        "# granbayes priors: one table per parameter (granbayes fit --priors FILE).",
+        '# dist = "uniform" | "loguniform" | "normal" | "lognormal"; lower and upper are hard',
+        "# bounds in the parameter's units; normal and lognormal also take mu and sigma (for",
+        "# lognormal: of log(value)). Parameters left out keep their defaults.",
+    ]
+    for name in names:
+        prior = priors[name]
+        lines += ["", f"# {name} [{prior.unit or '-'}]: {prior.why}".rstrip(": ")]
+        lines += [f"[{name}]", f'dist = "{prior.dist}"']
+        lines += [f"lower = {float(prior.lower)!r}", f"upper = {float(prior.upper)!r}"]
+        if prior.mu is not None:
+            lines += [f"mu = {float(prior.mu)!r}", f"sigma = {float(prior.sigma)!r}"]
+    return "\n".join(lines) + "\n"

@@ -19,6 +19,7 @@ import xarray as xr
 from matplotlib.figure import Figure
 
 from . import datatree as gdt
+from .criticism import identifiability_table
 from .experiment import COMMAND_NAMES
 from .forces import PARAMETERS
 
@@ -298,7 +299,7 @@ def write_fit_report(
     truth : mapping, optional
         Synthetic truth per volume fraction (overlaid on figures, compared in the summary).
     uniqueness : pandas.DataFrame, optional
-        Output of :func:`granbayes.fit.compare_commands`.
+        Output of :func:`granbayes.fitting.compare_commands`.
     diagnostics_plots : bool
         Whether to draw trace and rank plots.
 
@@ -309,6 +310,11 @@ def write_fit_report(
     """
     out = Path(out)
     written: list[Path] = []
+    if truth:  # kept with the posterior, so that a re-rendered report shows it too
+        dt = dt.copy()
+        dt.attrs["truth"] = json.dumps({repr(float(k)): dict(v) for k, v in truth.items()})
+    elif "truth" in dt.attrs:
+        truth = {float(k): v for k, v in json.loads(dt.attrs["truth"]).items()}
     gdt.write_datatree(dt, out / "posterior.nc")
     written.append(out / "posterior.nc")
     config = json.loads(dt.attrs["config"])
@@ -322,6 +328,8 @@ def write_fit_report(
     diag = gdt.run_diagnostics(dt)
     diag.to_csv(out / "diagnostics.csv", index=False)
     loo = gdt.loo(dt)
+    pit = gdt.loo_pit(dt)
+    pit_p = gdt.pit_uniformity(pit) if np.all(np.isfinite(pit)) else float("nan")
     phi_c = json.loads(dt.attrs["experiment"])["phi_c"]
     lines = [
         "# granbayes fit",
@@ -333,6 +341,9 @@ def write_fit_report(
         f"- seed: {dt.attrs['seed']}; intervals: {gdt.CI_PROB:.0%} equal-tailed (ETI)",
         f"- PSIS-LOO: elpd = {loo['elpd']:.1f} ± {loo['se']:.1f}, p_loo = {loo['p']:.1f}, "
         f"max Pareto k = {loo['max_pareto_k']:.2f} ({loo['n_bad_k']} jumps with k > 0.7)",
+        f"- LOO-PIT calibration of the jump heights: uniformity p = {pit_p:.2f} "
+        "(ArviZ `pot_c`; small p: the predictive distribution is mis-calibrated, see "
+        "`loo_pit.png`)",
         "",
     ]
     if fit_warnings:
@@ -357,6 +368,29 @@ def write_fit_report(
         ),
         "",
     ]
+    ident = identifiability_table(dt, names)
+    if len(ident):
+        ident.to_csv(out / "identifiability.csv", index=False)
+        written.append(out / "identifiability.csv")
+        lines += [
+            "## Identifiability",
+            "",
+            "What the data determine, per parameter and volume fraction: the contraction "
+            "1 − var(posterior) / var(prior), in the coordinate the prior is defined in "
+            "(the logarithm for log-uniform and log-normal priors). Near 0 the posterior is "
+            "the prior: the data say nothing about the parameter, and its interval is the "
+            "prior's range; near 1 the data pin it down. Verdicts: < 0.1 not identified, "
+            "< 0.5 weakly identified, < 0.9 identified, else well identified.",
+            "",
+            markdown_table(
+                ident.assign(
+                    contraction=ident["contraction"].map("{:.3f}".format),
+                    prior_sd=ident["prior_sd"].map("{:.3g}".format),
+                    posterior_sd=ident["posterior_sd"].map("{:.3g}".format),
+                )
+            ),
+            "",
+        ]
     if uniqueness is not None:
         uniqueness.to_csv(out / "uniqueness.csv", index=False)
         lines += [
@@ -379,6 +413,20 @@ def write_fit_report(
     for name, fig in figs.items():
         fig.savefig(out / name, dpi=120, bbox_inches="tight")
         written.append(out / name)
+    label = data_label(dt)
+    if "prior" in dt.children:
+        written.append(
+            gdt.plot_prior_posterior(
+                dt,
+                names,
+                out / "prior_posterior.png",
+                labels=_prior_posterior_labels(dt, names),
+                log10=[n for n in names if _log_scale(dt, n)],
+                title=label,
+            )
+        )
+    if np.all(np.isfinite(pit)):
+        written.append(gdt.plot_loo_pit(dt, out / "loo_pit.png", title=label))
     if diagnostics_plots:
         written += gdt.plot_diagnostics(dt, force_names, out)
     lines += ["## Figures", ""] + [f"![{p.stem}]({p.name})" for p in written if p.suffix == ".png"]
@@ -386,6 +434,23 @@ def write_fit_report(
     summary_md.write_text("\n".join(lines) + "\n")
     written += [out / "summary.csv", out / "diagnostics.csv", summary_md]
     return written
+
+
+def _log_scale(dt: xr.DataTree, name: str) -> bool:
+    """Whether the fit's prior on ``name`` is log-scale (log-uniform or log-normal)."""
+    prior = json.loads(dt.attrs["priors"]).get(name)
+    return prior is not None and prior["dist"] in ("loguniform", "lognormal")
+
+
+def _prior_posterior_labels(dt: xr.DataTree, names: list[str]) -> dict[str, str]:
+    """Panel labels with units; log-scale parameters as ``log₁₀ k (k in N/m)``."""
+    out = {}
+    for n in names:
+        symbol = _label(n).split(" [")[0]
+        out[n] = (
+            f"log₁₀ {symbol} ({symbol} in {_UNITS.get(n, '-')})" if _log_scale(dt, n) else _label(n)
+        )
+    return out
 
 
 def _truth_of(truth: Mapping[float, Mapping[str, float]], label: str) -> float:

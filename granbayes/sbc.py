@@ -1,4 +1,4 @@
-"""Simulation-based calibration (SBC) of :func:`granbayes.fit.fit` on an experiment's design.
+"""Simulation-based calibration (SBC) of :func:`granbayes.fit` on an experiment's design.
 
 Is the posterior that ``fit`` reports calibrated? Per replicate (Talts et al. 2018):
 
@@ -26,7 +26,6 @@ campaign's ``tasks.csv`` and ``tasks/``.
 from __future__ import annotations
 
 import dataclasses
-import importlib.metadata
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -39,9 +38,10 @@ from scipy import stats
 
 from . import datatree as gdt
 from ._files import atomic_path, write_json, write_text
+from ._provenance import machine, package_versions
 from .campaign import CampaignResult, Task, run_campaign, spawn_seeds
 from .experiment import Experiment
-from .fit import FitConfig, FitPart, data_hash, fit
+from .fitting import FitConfig, FitPart, data_hash, fit
 from .forces import TERMS
 from .likelihood import JumpModel, Observations
 from .priors import Prior, default_priors
@@ -426,7 +426,7 @@ def run_sbc(
     data_source: str = "",
     log=None,
 ) -> SBCResult:
-    """Simulation-based calibration of :func:`granbayes.fit.fit` on an experiment's design.
+    """Simulation-based calibration of :func:`granbayes.fit` on an experiment's design.
 
     Parameters
     ----------
@@ -558,7 +558,7 @@ def _write_outputs(
     elapsed = ok["elapsed_s"].astype(float)
     summary: dict[str, Any] = {
         "what": "simulation-based calibration of granbayes.fit on SYNTHETIC replicates",
-        "granbayes_version": _version(),
+        "granbayes_version": package_versions()["granbayes"],
         "data_source": data_source,
         "data_sha256": description["data_sha256"],
         "terms": list(config.terms),
@@ -571,6 +571,9 @@ def _write_outputs(
         "n_rank_draws": int(n_rank_draws),
         "fingerprint": result.fingerprint,
         "workers": result.workers,
+        # of the process that wrote this summary; the replicates ran on the workers above
+        "versions": package_versions(),
+        "machine": machine(),
         "timing": {
             "task_s_total": float(elapsed.sum()),
             "task_s_median": float(elapsed.median()) if len(elapsed) else None,
@@ -598,10 +601,3 @@ def _write_outputs(
                     title=f"SBC of fit ({' + '.join(config.terms)}), {data_source or 'design'}",
                 )
     return summary
-
-
-def _version() -> str:
-    try:
-        return importlib.metadata.version("granbayes")
-    except importlib.metadata.PackageNotFoundError:
-        return "unknown"

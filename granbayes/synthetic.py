@@ -6,6 +6,7 @@ reports label the data as synthetic wherever they appear.
 
 from __future__ import annotations
 
+import importlib.resources
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -15,7 +16,12 @@ import pandas as pd
 from .experiment import COMMAND_NAMES, Experiment
 from .simulator import SolverOptions, simulate
 
-__all__ = ["make_jumps", "write_experiment"]
+__all__ = ["REFERENCE_DATA", "make_jumps", "write_experiment"]
+
+#: The shipped SYNTHETIC reference data set: an experiment folder installed with the package
+#: (``granbayes/data/reference``; generator and seed: ``data/generate_reference.py`` in the
+#: source repository; truth: ``TRUTH.md`` and ``truth.toml`` in the folder).
+REFERENCE_DATA: Path = Path(str(importlib.resources.files("granbayes") / "data" / "reference"))
 
 
 def make_jumps(

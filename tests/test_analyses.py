@@ -21,10 +21,11 @@ import pandas as pd
 import pytest
 
 from granbayes import COMMAND_NAMES
+from granbayes.synthetic import REFERENCE_DATA
 
 ROOT = Path(__file__).resolve().parents[1]
 ANALYSES = ROOT / "analyses"
-REFERENCE = ROOT / "data" / "reference"
+REFERENCE = REFERENCE_DATA
 
 
 def _module(name: str):
@@ -112,7 +113,7 @@ def test_preload_transfer(tmp_path: Path, small_data: Path) -> None:
     """The preload fit reproduces the preload heights within noise (|z| < 3) and misses the
     delayed stutter preload at phi = 0.592 by more than 5 mm. In the reference truth both
     push-offs act on a compacted bed, and the law fitted on the (stiffer-looking) preload
-    jumps over-predicts the delayed stutter preload (data/reference/TRUTH.md: -10.9 mm on
+    jumps over-predicts the delayed stutter preload (granbayes/data/reference/TRUTH.md: -10.9 mm on
     average over both frequencies in the full data set)."""
     res = run("preload_transfer", small_data, tmp_path / "p")
     assert res["preload_max_abs_z"] < 3.0
@@ -149,11 +150,11 @@ def test_one_force_law(tmp_path: Path, small_data: Path) -> None:
 def test_misfit_maps(tmp_path: Path, small_data: Path) -> None:
     """The thesis's Fig. 7 on the reference data. In the physical reference truth both the
     preload and the delayed stutter preload push off a compacted bed, so the thesis's
-    non-intersecting valleys are not expected (data/reference/TRUTH.md); what is checked is
-    the method: the reported verdict follows its definition (valleys intersect exactly when
-    the closest approach is <= 2 standard errors) at every phi, the bootstrap fraction is a
-    fraction, and at 0.632 (no hidden effect) the closest approach is within a few
-    standard errors."""
+    non-intersecting valleys are not expected (granbayes/data/reference/TRUTH.md); what is
+    checked is the method: the reported verdict follows its definition (valleys intersect
+    exactly when the closest approach is <= 2 standard errors) at every phi, the bootstrap
+    fraction is a fraction, and at 0.632 (no hidden effect) the closest approach is within
+    a few standard errors."""
     res = run("misfit_maps", small_data, tmp_path / "m")
     assert res["phi"] == 0.592
     assert 0.0 <= res["intersect_fraction"] <= 1.0

@@ -363,7 +363,7 @@ def test_console_script(tmp_path: Path) -> None:
     expected = simulate("single", 0.612, {"k": 3000.0, "c_d": 50.0})
     assert record["height_mm"] == pytest.approx(float(expected.height_mm[0]), abs=1e-9)
 
-    bad = write(tmp_path / "bad.csv", "command,phi\nsingle,0.6\nsingle,0.6\nleap,0.6\n")
+    bad = write(tmp_path / "bad.csv", "command,phi,k\nsingle,0.6,1\nsingle,0.6,1\nleap,0.6,1\n")
     done = subprocess.run(
         [*program, "simulate", "--batch", str(bad), "--out", str(tmp_path / "out.csv")],
         capture_output=True,

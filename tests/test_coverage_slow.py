@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from granbayes import COMMAND_NAMES, Experiment, simulate
-from granbayes.fit import FitConfig, fit
+from granbayes.fitting import FitConfig, fit
 from granbayes.sampler import SamplerSettings
 
 TRUE_K = 4000.0  # N/m, depth-only law

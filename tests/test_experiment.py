@@ -575,7 +575,7 @@ def test_batch_r_unload_one_allowed(tmp_path: Path) -> None:
     ],
 )
 def test_batch_bad_cells(tmp_path: Path, column: str, value: str, piece: str) -> None:
-    good = {"command": "single", "phi": "0.6", column: "1"}
+    good = {"command": "single", "phi": "0.6", "k": "3000", column: "1"}
     if column == "command":
         good[column] = "single"
     if column == "phi":

@@ -24,14 +24,14 @@ import xarray as xr
 from scipy import stats
 
 import granbayes.datatree as gdt
-import granbayes.fit as gfit
+import granbayes.fitting as gfit
 import granbayes.report as greport
 import granbayes.sampler as gsampler
 from granbayes import COMMAND_NAMES, Experiment, load_experiment, load_jumps, simulate
 from granbayes.cli import EXIT_INPUT, EXIT_OK, main
 from granbayes.criticism import DiagnoseConfig
 from granbayes.datatree import read_datatree, write_datatree
-from granbayes.fit import FitConfig, FitResult, compare_commands, data_hash, fit
+from granbayes.fitting import FitConfig, FitResult, compare_commands, data_hash, fit
 from granbayes.priors import default_priors
 from granbayes.sampler import (
     CheckpointMismatchError,

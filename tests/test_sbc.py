@@ -26,7 +26,7 @@ from distributed import Client
 
 from granbayes import load_experiment, load_jumps
 from granbayes.cli import EXIT_INPUT, EXIT_OK, main
-from granbayes.fit import FitConfig
+from granbayes.fitting import FitConfig
 from granbayes.sampler import SamplerSettings
 from granbayes.sbc import run_sbc, summarize_ranks
 

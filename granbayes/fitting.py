@@ -18,16 +18,17 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import importlib.metadata
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import pandas as pd
 import xarray as xr
 
 from . import datatree as gdt
+from ._provenance import environment
 from .experiment import COMMAND_NAMES, Experiment
 from .forces import PARAMETERS, terms_of
 from .likelihood import JumpModel, Observations
@@ -46,6 +47,7 @@ __all__ = [
     "data_hash",
     "find_starts",
     "fit",
+    "part_models",
 ]
 
 
@@ -83,10 +85,10 @@ class FitConfig:
     """
 
     terms: tuple[str, ...] = ("depth",)
-    phi_mode: str = "per_phi"
-    noise: str = "normal"
+    phi_mode: Literal["per_phi", "quadratic"] = "per_phi"
+    noise: Literal["normal", "student_t"] = "normal"
     nu: float = 4.0
-    sigma_mode: str = "per_phi"
+    sigma_mode: Literal["per_phi", "global"] = "per_phi"
     sampler: SamplerSettings = field(default_factory=_default_sampler)
     fixed: Mapping[str, float] = field(default_factory=dict)
     options: SolverOptions = field(default_factory=SolverOptions)
@@ -104,6 +106,33 @@ class FitConfig:
         d["terms"] = list(self.terms)
         d["fixed"] = dict(self.fixed)
         return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, object]) -> FitConfig:
+        """The configuration described by :meth:`to_dict` (keys it does not know are ignored).
+
+        Parameters
+        ----------
+        d : mapping
+            A ``to_dict`` document, e.g. the ``config`` attribute of a saved fit.
+
+        Returns
+        -------
+        FitConfig
+        """
+
+        def known(kind: type, values: object) -> dict:
+            names = {f.name for f in dataclasses.fields(kind)}
+            return {k: v for k, v in dict(values or {}).items() if k in names}
+
+        fields = known(cls, d)
+        fields["terms"] = tuple(fields.get("terms", ("depth",)))
+        fields["fixed"] = {str(k): float(v) for k, v in dict(fields.get("fixed", {})).items()}
+        if "sampler" in fields:
+            fields["sampler"] = SamplerSettings(**known(SamplerSettings, fields["sampler"]))
+        if "options" in fields:
+            fields["options"] = SolverOptions(**known(SolverOptions, fields["options"]))
+        return cls(**fields)
 
 
 @dataclass
@@ -147,6 +176,21 @@ class FitResult:
     def diagnostics(self) -> pd.DataFrame:
         """Per run: autocorrelation times, R-hat, ESS, chain length, convergence."""
         return gdt.run_diagnostics(self.datatree)
+
+    def save(self, path: str | Path) -> Path:
+        """Write the DataTree as netCDF (``posterior.nc``; read back with ``load_fit``).
+
+        Parameters
+        ----------
+        path : str or Path
+            The file to write.
+
+        Returns
+        -------
+        Path
+        """
+        gdt.write_datatree(self.datatree, Path(path))
+        return Path(path)
 
 
 # ----------------------------------------------------------------------------------------
@@ -298,6 +342,46 @@ def _make_model(
     )
 
 
+def part_models(
+    experiment: Experiment,
+    table: pd.DataFrame,
+    config: FitConfig,
+    priors: Mapping[str, Prior],
+) -> list[tuple[str, JumpModel, np.ndarray]]:
+    """The sampler runs a fit consists of: label, log-posterior and the jumps of each.
+
+    ``per_phi``: one run per volume fraction (label ``"phi=<phi>"``, one parameter set
+    shared by every command); ``quadratic``: one run of all jumps (label ``"all"``). The
+    fit and a saved fit read back (:func:`granbayes.load_fit`) build their models here.
+
+    Parameters
+    ----------
+    experiment : Experiment
+    table : pandas.DataFrame
+        Validated jumps; row ``i`` is jump ``i``.
+    config : FitConfig
+    priors : mapping of str to Prior
+
+    Returns
+    -------
+    list of (str, JumpModel, ndarray of int)
+        Label, model and the rows of ``table`` each run fits, in run order.
+    """
+    table = table.reset_index(drop=True)
+    jumps = np.arange(len(table))
+    if config.phi_mode == "quadratic":
+        obs = Observations.from_table(table)
+        return [("all", _make_model(obs, experiment, config, priors, "quadratic"), jumps)]
+    out = []
+    for phi in np.unique(table["phi"].to_numpy(float)):
+        mask = (table["phi"] == phi).to_numpy()
+        obs = Observations.from_table(table[mask])
+        out.append(
+            (f"phi={phi:g}", _make_model(obs, experiment, config, priors, "shared"), jumps[mask])
+        )
+    return out
+
+
 def fit(
     experiment: Experiment,
     table: pd.DataFrame,
@@ -347,40 +431,13 @@ def fit(
     table = _prepare(table)
     backend = Path(backend) if backend is not None else None
     parts: list[FitPart] = []
-    if config.phi_mode == "per_phi":
-        phis = np.unique(table["phi"].to_numpy(float))
-        for phi, part_seed in zip(phis, _seeds(seed, len(phis)), strict=True):
-            sub = table[table["phi"] == phi]
-            obs = Observations.from_table(sub)
-            model = _make_model(obs, experiment, config, priors, "shared")
-            warm = None if warm_start is None else _warm_positions(model, warm_start, phi)
-            parts.append(
-                _run_part(
-                    f"phi={phi:g}",
-                    model,
-                    sub["jump"].to_numpy(),
-                    config,
-                    part_seed,
-                    backend,
-                    resume,
-                    warm,
-                    progress,
-                )
-            )
-    else:
-        obs = Observations.from_table(table)
-        model = _make_model(obs, experiment, config, priors, "quadratic")
+    specs = part_models(experiment, table, config, priors)
+    for (label, model, jumps), part_seed in zip(specs, _seeds(seed, len(specs)), strict=True):
+        warm = None
+        if warm_start is not None and config.phi_mode == "per_phi":
+            warm = _warm_positions(model, warm_start, float(model.phis[0]))
         parts.append(
-            _run_part(
-                "all",
-                model,
-                table["jump"].to_numpy(),
-                config,
-                _seeds(seed, 1)[0],
-                backend,
-                resume,
-                progress=progress,
-            )
+            _run_part(label, model, jumps, config, part_seed, backend, resume, warm, progress)
         )
     return _assemble(parts, experiment, table, config, priors, seed, data_source)
 
@@ -425,16 +482,6 @@ def _replicate(part: FitPart, seed: int) -> tuple[np.ndarray, np.ndarray]:
         part.run.samples.reshape(-1, ndim), np.random.default_rng(seed)
     )
     return mean.reshape(c, d, -1), rep.reshape(c, d, -1)
-
-
-def _versions() -> dict[str, str]:
-    out = {}
-    for pkg in ("granbayes", "numpy", "scipy", "numba", "emcee", "arviz", "xarray"):
-        try:
-            out[pkg] = importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            out[pkg] = "unknown"
-    return out
 
 
 def data_hash(experiment: Experiment, table: pd.DataFrame) -> str:
@@ -582,7 +629,8 @@ def _assemble(
         prior, prior_pred = _prior_draws(parts, phis, n_jump, config, seed)
     attrs = {
         "seed": int(seed),
-        "versions": _versions(),
+        # package versions and the machine: what bit-identical results require to match
+        **environment(),
         "config": config.to_dict(),
         "priors": {k: dataclasses.asdict(v) for k, v in priors.items()},
         "data_sha256": data_hash(experiment, observed),
