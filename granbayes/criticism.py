@@ -324,12 +324,22 @@ def misfit_threshold(residuals: pd.DataFrame, family_alpha: float) -> float:
 
 
 def describe_cell(row: Mapping) -> str:
-    """A misfit cell in words, e.g. "delayed stutter preload at phi = 0.592 (12 Hz) is
-    under-predicted by 18.1 mm (z = 5.3)"."""
+    """A misfit cell in words, e.g. "delayed stutter preload at phi = 0.592 (12 Hz, 20 mm,
+    3 periods settled) is under-predicted by 18.1 mm (z = 5.3)".
+
+    The settings that distinguish cells are named: frequency and amplitude, the delay of a
+    delayed stutter, the settle periods of a delayed stutter preload.
+    """
     verb = "under-predicted" if row["mean_residual_mm"] > 0 else "over-predicted"
-    setting = [f"{row['freq_hz']:g} Hz"] if row.get("freq_hz") else []
+    setting = []
+    if row.get("freq_hz"):
+        setting.append(f"{row['freq_hz']:g} Hz")
+    if row.get("amplitude_mm"):
+        setting.append(f"{row['amplitude_mm']:g} mm")
     if row.get("command") == "delayed_stutter" and "delay_ms" in row:
         setting.append(f"{row['delay_ms']:g} ms delay")
+    if row.get("command") == "delayed_stutter_preload" and "settle_periods" in row:
+        setting.append(f"{row['settle_periods']:g} periods settled")
     setting_text = f" ({', '.join(setting)})" if setting else ""
     return (
         f"{str(row['command']).replace('_', ' ')} at phi = {row['phi']:g}{setting_text} is "

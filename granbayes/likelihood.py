@@ -22,6 +22,7 @@ fitted per volume fraction (default) or globally.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -86,6 +87,11 @@ class Observations:
     def subset(self, mask: np.ndarray | pd.Series) -> Observations:
         """Observations restricted to the jumps where ``mask`` is true."""
         return Observations.from_table(self.table[np.asarray(mask)])
+
+    @functools.cached_property
+    def config_phi(self) -> np.ndarray:
+        """Volume fraction of every config (computed once)."""
+        return self.configs["phi"].to_numpy(float)
 
     @property
     def n_obs(self) -> int:
@@ -336,8 +342,9 @@ class JumpModel:
         """
         u = np.atleast_2d(u)
         obs = observations or self.obs
-        x = obs.configs["phi"].to_numpy(float) - self.experiment.phi_c
-        n, m = u.shape[0], len(obs.configs)
+        config_phi = obs.config_phi
+        x = config_phi - self.experiment.phi_c
+        n, m = u.shape[0], len(config_phi)
         if self.phi_mode == "shared":
             x_eval = np.zeros(1)
         else:
@@ -351,7 +358,7 @@ class JumpModel:
                 params[p.name] = np.broadcast_to(values[p.name], (n, m)).reshape(-1)
             elif p.name in self.fixed:
                 params[p.name] = np.full(n * m, float(self.fixed[p.name]))
-        phi = np.broadcast_to(obs.configs["phi"].to_numpy(float), (n, m)).reshape(-1)
+        phi = np.broadcast_to(config_phi, (n, m)).reshape(-1)
         rows = build_rows(self.experiment.robot, phi, params)
         index = np.tile(np.arange(m), n)
         res = simulate_rows(
@@ -390,6 +397,8 @@ class JumpModel:
 
     def _sigma_of(self, u: np.ndarray, obs: Observations) -> np.ndarray:
         """Noise scale [mm] of every jump of ``obs``: shape (n, n_obs)."""
+        if obs is self.obs:  # the likelihood's own data (every sampler call)
+            return self._sigma_at(u, self._phis)[:, self._phi_index_of_obs]
         phis = obs.table["phi"].to_numpy(float)
         index = np.searchsorted(self._phis, phis).clip(0, len(self._phis) - 1)
         if not np.allclose(self._phis[index], phis, atol=1e-12):

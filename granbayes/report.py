@@ -653,11 +653,22 @@ def _verdict_lines(rec: Mapping, base_terms: str) -> list[str]:
             f"**Verdict: baseline adequate.** No misfit cell and no candidate term improves "
             f"the baseline ({base_terms}) by a clear margin; RMSE {sel['rmse_before_mm']:.2f} mm."
         ]
-    helped = (
-        f"Adding {', '.join(sel['added'])} helped ({gain}, {rmse}) but does not explain it. "
-        if sel["added"]
-        else "No library term removes it. "
-    )
+    unconverged = [
+        f"{c['term']} ({c['elpd_diff_vs_current']:+.1f} ± {c['elpd_diff_vs_current_se']:.1f})"
+        for c in rec["candidates"]
+        if not c["converged"]
+    ]
+    if sel["added"]:
+        helped = (
+            f"Adding {', '.join(sel['added'])} helped ({gain}, {rmse}) but does not explain it. "
+        )
+    elif unconverged:
+        helped = (
+            "No converged library term removes it; these candidates did not converge, so "
+            f"nothing was decided on them: {', '.join(unconverged)}. "
+        )
+    else:
+        helped = "No library term removes it. "
     where = [f"- {m['description']}" for m in rec["residual_misfit"][:8]]
     return [
         "**Verdict: misfit remains.** The data show physics that the library does not hold: "

@@ -239,6 +239,24 @@ def test_residual_table_keys_cells_by_every_setting() -> None:
     assert "80 ms delay" in describe_cell(worst)
 
 
+def test_describe_cell_names_the_distinguishing_settings() -> None:
+    """Cells that differ only in amplitude or settle periods get different descriptions."""
+    row = {
+        "command": "delayed_stutter_preload",
+        "phi": 0.6,
+        "freq_hz": 8.0,
+        "amplitude_mm": 18.0,
+        "delay_ms": 50.0,
+        "settle_periods": 3.0,
+        "mean_residual_mm": 4.0,
+        "z": 4.0,
+    }
+    text = describe_cell(row)
+    assert "(8 Hz, 18 mm, 3 periods settled)" in text and "delay" not in text
+    assert describe_cell({**row, "settle_periods": 5.0}) != text
+    assert describe_cell({**row, "amplitude_mm": 20.0}) != text
+
+
 def test_describe_cell_in_words() -> None:
     text = describe_cell(
         {

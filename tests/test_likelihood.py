@@ -212,38 +212,43 @@ def test_simulation_failure_gives_minus_inf(obs: Observations) -> None:
 
 
 def test_log_prior_includes_log_transform() -> None:
-    """The prior density is expressed in sampling coordinates (``log`` for log-uniform).
+    """The prior density is expressed in sampling coordinates (``log`` for log-uniform,
+    ``sqrt`` for a uniform prior from zero).
 
     A log-uniform prior on ``[a, b]`` is uniform in ``u = log(value)``: density
     ``1 / (log b - log a)`` everywhere inside, bounds included, ``-inf`` just outside;
-    the uniform ``c_d`` contributes ``1 / 300``. Closed forms, so rtol 1e-12.
+    the uniform ``c_d`` on ``[0, 300]`` sampled in ``u = sqrt(c_d)`` has density
+    ``2 u / 300``. Closed forms, so rtol 1e-12.
     """
     obs = Observations.from_table(jumps_table([(0.612, "single", 50.0, 10.0)]))
     model = JumpModel(obs, EXPERIMENT, ["depth", "drag"])
     assert model.coordinate_names == ["k", "c_d", "sigma_mm[0.612]"]
     lk = -math.log(math.log(5e4) - math.log(200.0))
     lsig = -math.log(math.log(30.0) - math.log(0.3))
-    lcd = -math.log(300.0)
+    lcd = math.log(2.0 * 3.0 / 300.0)  # at u = sqrt(c_d) = 3
     log_k = np.array([math.log(200.0), math.log(1000.0), math.log(2e4), math.log(5e4)])
-    u = np.column_stack([log_k, np.full(4, 10.0), np.full(4, math.log(3.0))])
+    u = np.column_stack([log_k, np.full(4, 3.0), np.full(4, math.log(3.0))])
     np.testing.assert_allclose(model.log_prior(u), lk + lcd + lsig, rtol=1e-12)
     # just outside each bound, in sampling coordinates
     eps = 1e-9
     outside = np.array(
         [
-            [math.log(200.0) - eps, 10.0, 0.0],
-            [math.log(5e4) + eps, 10.0, 0.0],
+            [math.log(200.0) - eps, 3.0, 0.0],
+            [math.log(5e4) + eps, 3.0, 0.0],
             [math.log(1000.0), -eps, 0.0],
-            [math.log(1000.0), 300.0 + eps, 0.0],
-            [math.log(1000.0), 10.0, math.log(0.3) - eps],
-            [math.log(1000.0), 10.0, math.log(30.0) + eps],
+            [math.log(1000.0), math.sqrt(300.0) + eps, 0.0],
+            [math.log(1000.0), 3.0, math.log(0.3) - eps],
+            [math.log(1000.0), 3.0, math.log(30.0) + eps],
         ]
     )
     assert np.all(model.log_prior(outside) == -np.inf)
-    # a log-uniform density integrates to one over log space (and not over value space)
-    k_prior = model.priors["k"]
-    grid = np.linspace(*k_prior.bounds_u, 2001)
-    assert np.trapezoid(np.exp(k_prior.logpdf_u(grid)), grid) == pytest.approx(1.0, rel=1e-12)
+    # both densities integrate to one over their sampling coordinate
+    for name in ("k", "c_d"):
+        prior = model.priors[name]
+        grid = np.linspace(*prior.bounds_u, 2001)
+        assert np.trapezoid(np.exp(prior.logpdf_u(grid)), grid) == pytest.approx(1.0, rel=1e-6)
+    # the value of u = sqrt(c_d) is its square
+    np.testing.assert_allclose(model.priors["c_d"].to_value(np.array([3.0])), [9.0])
 
 
 def test_prior_sampling_stays_inside() -> None:
@@ -271,7 +276,7 @@ def quadratic_model(obs: Observations) -> JumpModel:
 
 
 def test_quadratic_value_at_phi_c(quadratic_model: JumpModel) -> None:
-    """At ``phi_c`` only the ``c0`` coefficient counts: ``k = exp(c0)``, ``c_d = c0``.
+    """At ``phi_c`` only the ``c0`` coefficient counts: ``k = exp(c0)``, ``c_d = c0^2``.
 
     ``x = 0`` makes the c1 and c2 terms exactly zero, so rtol 1e-12.
     """
@@ -289,7 +294,7 @@ def test_quadratic_value_at_phi_c(quadratic_model: JumpModel) -> None:
     u = m.sample_prior(np.random.default_rng(8), 5)
     vals = m.parameter_values(u, np.array([EXPERIMENT.phi_c]))
     np.testing.assert_allclose(vals["k"][:, 0], np.exp(u[:, 0]), rtol=1e-12)
-    np.testing.assert_allclose(vals["c_d"][:, 0], u[:, 3], rtol=1e-12)
+    np.testing.assert_allclose(vals["c_d"][:, 0], u[:, 3] ** 2, rtol=1e-12)
     # sigma is only defined at the fitted volume fractions
     assert np.all(np.isnan(vals["sigma_mm"]))
     at_data = m.parameter_values(u)
@@ -303,15 +308,15 @@ def test_quadratic_implied_out_of_bounds(quadratic_model: JumpModel) -> None:
     """Coefficients inside their own priors whose implied law leaves the bounds get -inf.
 
     ``k:c1 = 400`` is inside its prior (bound ``log(250) / 0.01 ~ 552``) but makes
-    ``k(0.622) = 4000 e^4 ~ 2.2e5 N/m > 5e4``; a negative drag at 0.602 likewise.
+    ``k(0.622) = 4000 e^4 ~ 2.2e5 N/m > 5e4``; a negative ``sqrt(c_d)`` at 0.602 likewise.
     """
     m = quadratic_model
-    base = np.array([math.log(4000.0), 0.0, 0.0, 10.0, 0.0, 0.0, math.log(3.0), math.log(3.0)])
+    base = np.array([math.log(4000.0), 0.0, 0.0, 3.0, 0.0, 0.0, math.log(3.0), math.log(3.0)])
     assert np.isfinite(m.log_prior(base[None, :])[0])
     bad_k = base.copy()
     bad_k[1] = 400.0
     bad_cd = base.copy()
-    bad_cd[4] = 2000.0  # c_d(0.602) = 10 - 2000 * 0.01 = -10 kg/m
+    bad_cd[4] = 500.0  # sqrt(c_d)(0.602) = 3 - 500 * 0.01 = -2: outside [0, sqrt(300)]
     walkers = np.stack([bad_k, bad_cd])
     for j in range(m.ndim):  # each coefficient alone is inside its own prior
         lo, hi = m._coords[j].prior.bounds_u
