@@ -252,7 +252,7 @@ def test_describe_cell_names_the_distinguishing_settings() -> None:
         "z": 4.0,
     }
     text = describe_cell(row)
-    assert "(8 Hz, 18 mm, 3 periods settled)" in text and "delay" not in text
+    assert "(8 Hz, 18 mm, 3 periods settled)" in text and "ms delay" not in text
     assert describe_cell({**row, "settle_periods": 5.0}) != text
     assert describe_cell({**row, "amplitude_mm": 20.0}) != text
 
