@@ -33,11 +33,12 @@ DATA = REFERENCE_DATA
 #: (label, function name fragment in the profile) rows of the time breakdown.
 BREAKDOWN = (
     ("simulator (compiled kernel, via simulate_rows)", "simulate_rows"),
-    ("start search (prior draws + Nelder-Mead)", "find_start"),
+    ("dispersed, optimised starts of the ensembles", "find_starts"),
     ("emcee sampling incl. likelihood", "run_mcmc"),
     ("  of which HDF5 checkpoints", "save_checkpoint"),
-    ("autocorrelation checks", "_assess"),
+    ("convergence checks (tau, R-hat, ESS)", "_check"),
     ("posterior predictive replicates", "_replicate"),
+    ("prior draws and prior predictive", "_prior_draws"),
 )
 
 
@@ -68,20 +69,32 @@ def main() -> None:
         prof.disable()
         t1 = time.perf_counter()
         if not args.no_report:
-            write_fit_report(result, Path(tmp))
+            write_fit_report(result.datatree, Path(tmp))
         t_report = time.perf_counter() - t1
         wall = time.perf_counter() - t0
     stats = pstats.Stats(prof)
     diag = result.diagnostics()
     rows = [(label, _cumtime(stats, frag)) for label, frag in BREAKDOWN]
     rows.append(("report: tables, LOO, figures, netCDF (not profiled)", t_report))
-    n_sims = int(diag["n_steps"].sum()) * config.sampler.n_walkers * 10
+    n_sims = int((diag["n_steps"] * diag["n_chains"]).sum()) * 10
     report = {
         "date": datetime.date.today().isoformat(),
         "wall_s": wall,
         "fit_s": t_fit,
         "converged": bool(diag["converged"].all()),
-        "runs": diag[["run", "n_steps", "tau_max", "acceptance", "converged"]].to_dict("records"),
+        "runs": diag[
+            [
+                "run",
+                "n_ensembles",
+                "n_chains",
+                "n_steps",
+                "tau_max",
+                "rhat_max",
+                "ess_min",
+                "acceptance",
+                "converged",
+            ]
+        ].to_dict("records"),
         "breakdown_s": dict(rows),
         "approx_simulations": n_sims,
         "numba_threads": numba.get_num_threads(),
@@ -105,11 +118,14 @@ def main() -> None:
     for label, t in rows:
         print(f"| {label} | {t:.1f} |")
     print()
-    cols = ["run", "n_steps", "tau_max", "acceptance", "converged"]
+    cols = ["run", "n_steps", "tau_max", "rhat_max", "ess_min", "acceptance", "converged"]
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in diag[cols].itertuples(index=False):
-        print(f"| {r.run} | {r.n_steps} | {r.tau_max:.1f} | {r.acceptance:.2f} | {r.converged} |")
+        print(
+            f"| {r.run} | {r.n_steps} | {r.tau_max:.1f} | {r.rhat_max:.3f} | {r.ess_min:.0f} "
+            f"| {r.acceptance:.2f} | {r.converged} |"
+        )
     print()
     print(f"machine: {report['machine']}")
 

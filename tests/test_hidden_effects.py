@@ -84,9 +84,18 @@ def _diagnosis(term: str | None):
     return diagnose(EXPERIMENT, table, CONFIG, seed=5, log=lambda *a, **k: None)
 
 
-@pytest.mark.parametrize(
-    "term", [pytest.param(t, marks=pytest.mark.xdist_group(t)) for t in EFFECTS]
-)
+#: The cases ``.ci/run`` runs on every submission (marker ``ci_subset``): a false
+#: discovery, a hidden term and an effect outside the library. The whole suite runs with
+#: ``make test-slow``.
+CI_SUBSET = ("null", "compaction", "pause_stiffening")
+
+
+def _marks(name: str) -> list:
+    marks = [pytest.mark.xdist_group(name)]
+    return [*marks, pytest.mark.ci_subset] if name in CI_SUBSET else marks
+
+
+@pytest.mark.parametrize("term", [pytest.param(t, marks=_marks(t)) for t in EFFECTS])
 def test_diagnose_finds_the_hidden_term(term: str) -> None:
     """Exactly the hidden term is added; its parameter is recovered; the gain is real."""
     d = _diagnosis(term)
@@ -105,6 +114,7 @@ def test_diagnose_finds_the_hidden_term(term: str) -> None:
 
 
 @pytest.mark.xdist_group("null")
+@pytest.mark.ci_subset
 def test_null_case_keeps_the_baseline() -> None:
     """No hidden effect: no term may be added (false discoveries are as bad as misses)."""
     d = _diagnosis(None)
@@ -132,9 +142,7 @@ def test_two_frequencies_separate_drag_from_viscous(truth: str, rival: str) -> N
     assert first[truth].converged and first[rival].converged
 
 
-@pytest.mark.parametrize(
-    "effect", [pytest.param(e, marks=pytest.mark.xdist_group(e)) for e in OUT_OF_LIBRARY]
-)
+@pytest.mark.parametrize("effect", [pytest.param(e, marks=_marks(e)) for e in OUT_OF_LIBRARY])
 def test_effect_outside_the_library_is_not_blamed_on_a_term(effect: str) -> None:
     """The library cannot explain it: misfit_remains, or a law that leaves no misfit."""
     case = make_case(effect, seed=7)
