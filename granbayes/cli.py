@@ -46,8 +46,10 @@ and exit code 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import difflib
+import io
 import json
 import math
 import os
@@ -499,6 +501,7 @@ def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the fit (default 0)")
     parser.add_argument("--no-fit", action="store_true", help="only the simulations")
+    parser.add_argument("--quiet", action="store_true", help="print nothing (files only)")
 
 
 def _demo_jumps(out: Path, experiment: Experiment) -> None:
@@ -623,7 +626,9 @@ def _run_demo(args: argparse.Namespace) -> int:
     data = None if args.no_fit else args.data
     if data is not None and not Path(data).is_dir():
         raise UsageError(f"--data {data}: no such experiment folder")
-    run_demo(args.out, data, args.seed)
+    quiet = contextlib.redirect_stdout(io.StringIO()) if args.quiet else contextlib.nullcontext()
+    with quiet:
+        run_demo(args.out, data, args.seed)
     return EXIT_OK
 
 

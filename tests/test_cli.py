@@ -384,6 +384,14 @@ def test_console_script(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------------------
 
 
+def test_demo_quiet_prints_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--quiet`` keeps the files and prints nothing."""
+    code, out, err = run(capsys, "demo", "--out", str(tmp_path / "d"), "--no-fit", "--quiet")
+    assert code == EXIT_OK, err
+    assert out == ""
+    assert (tmp_path / "d" / "heights.csv").exists()
+
+
 def test_demo_writes_its_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out_dir = tmp_path / "demo"
     code, out, err = run(capsys, "demo", "--out", str(out_dir), "--no-fit")
