@@ -80,10 +80,6 @@ __all__ = [
 CELL_KEYS = ("command", "phi", "freq_hz", "amplitude_mm", "delay_ms", "settle_periods")
 
 
-def _screening_sampler() -> SamplerSettings:
-    return SamplerSettings()
-
-
 @dataclass(frozen=True)
 class DiagnoseConfig:
     """Settings of the criticism loop.
@@ -118,7 +114,7 @@ class DiagnoseConfig:
 
     baseline: tuple[str, ...] = ("depth",)
     candidates: tuple[str, ...] | None = None
-    sampler: SamplerSettings = field(default_factory=_screening_sampler)
+    sampler: SamplerSettings = field(default_factory=SamplerSettings)
     max_added: int = 2
     min_gain: float = 4.0
     se_factor: float = 2.0

@@ -51,10 +51,6 @@ __all__ = [
 ]
 
 
-def _default_sampler() -> SamplerSettings:
-    return SamplerSettings()
-
-
 @dataclass(frozen=True)
 class FitConfig:
     """What to fit and how.
@@ -89,7 +85,7 @@ class FitConfig:
     noise: Literal["normal", "student_t"] = "normal"
     nu: float = 4.0
     sigma_mode: Literal["per_phi", "global"] = "per_phi"
-    sampler: SamplerSettings = field(default_factory=_default_sampler)
+    sampler: SamplerSettings = field(default_factory=SamplerSettings)
     fixed: Mapping[str, float] = field(default_factory=dict)
     options: SolverOptions = field(default_factory=SolverOptions)
     n_threads: int | None = None

@@ -41,9 +41,8 @@ from ._files import atomic_path, write_json, write_text
 from ._provenance import machine, package_versions
 from .campaign import CampaignResult, Task, run_campaign, spawn_seeds
 from .experiment import Experiment
-from .fitting import FitConfig, FitPart, data_hash, fit
+from .fitting import FitConfig, FitPart, data_hash, fit, part_models
 from .forces import TERMS
-from .likelihood import JumpModel, Observations
 from .priors import Prior, default_priors
 
 __all__ = [
@@ -88,27 +87,6 @@ class SBCResult:
 # ----------------------------------------------------------------------------------------
 # One replicate (runs on a Dask worker)
 # ----------------------------------------------------------------------------------------
-def _phi_model(
-    experiment: Experiment,
-    table: pd.DataFrame,
-    config: FitConfig,
-    priors: Mapping[str, Prior],
-) -> JumpModel:
-    """The model ``fit`` builds for one volume fraction (per-phi mode)."""
-    return JumpModel(
-        Observations.from_table(table),
-        experiment,
-        config.terms,
-        priors=priors,
-        phi_mode="shared",
-        noise=config.noise,
-        nu=config.nu,
-        fixed=config.fixed,
-        options=config.options,
-        n_threads=config.n_threads,
-    )
-
-
 def draw_replicate(
     experiment: Experiment,
     design: pd.DataFrame,
@@ -147,10 +125,8 @@ def draw_replicate(
     table = design.reset_index(drop=True).copy()
     heights = np.full(len(table), np.nan)
     truths: dict[float, dict[str, float]] = {}
-    phi_col = table["phi"].to_numpy(float)
-    for phi in np.unique(phi_col):
-        rows = np.flatnonzero(phi_col == phi)
-        model = _phi_model(experiment, table.iloc[rows], config, priors)
+    for _, model, rows in part_models(experiment, table, config, priors):
+        phi = float(model.phis[0])
         for _ in range(_MAX_PRIOR_TRIES):
             u = model.sample_prior(rng, 1)
             sim, ok = model.predict(u)
