@@ -663,9 +663,11 @@ def test_compare_commands(tiny_fits, two_phis: Path) -> None:
         "max_pareto_k_shared",
         "max_pareto_k_per_command",
         "preferred",
+        "per_command_converged",
         "k_intervals_overlap",
     ]
     assert list(result.columns) == expected_columns
+    assert result["per_command_converged"].dtype == bool
     assert result["phi"].tolist() == [0.602, 0.622]
     numeric = result[expected_columns[1:7]].to_numpy(float)
     assert np.all(np.isfinite(numeric))
