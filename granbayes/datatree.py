@@ -325,6 +325,18 @@ def pit_uniformity(pit: np.ndarray) -> float:
     return float(sbc_uniformity({"pit": np.asarray(pit, dtype=float)[:, None]}, [0.0])["pit"][0])
 
 
+def _draw_uniform_band(fig, n: int, band_prob: float, seed: int) -> None:
+    """Shade, on every axis of an ECDF-difference figure, the ``band_prob`` simultaneous
+    band of the ECDF of ``n`` uniform values minus the uniform CDF (grey)."""
+    from arviz_stats.ecdf_utils import ecdf_pit
+
+    x, _, lower, upper = ecdf_pit(
+        np.linspace(0.0, 1.0, n), band_prob, 1000, rng=np.random.default_rng(seed)
+    )
+    for ax in fig.axes:
+        ax.fill_between(x, lower - x, upper - x, step="post", color="0.75", alpha=0.5, lw=0)
+
+
 def plot_loo_pit(
     dt: xr.DataTree, path: Path, *, band_prob: float = 0.95, seed: int = 0, title: str = ""
 ) -> Path:
@@ -354,7 +366,6 @@ def plot_loo_pit(
     Path
     """
     import arviz_plots as azp
-    from arviz_stats.ecdf_utils import ecdf_pit
     from matplotlib import pyplot as plt
 
     with warnings.catch_warnings():
@@ -367,11 +378,8 @@ def plot_loo_pit(
         )
     fig = pc.viz["figure"].item()
     n = dt["observed_data"].sizes["jump"]
-    x, _, lower, upper = ecdf_pit(
-        np.linspace(0.0, 1.0, n), band_prob, 1000, rng=np.random.default_rng(seed)
-    )
+    _draw_uniform_band(fig, n, band_prob, seed)
     for ax in fig.axes:
-        ax.fill_between(x, lower - x, upper - x, step="post", color="0.75", alpha=0.5, lw=0)
         ax.set_title("")
         ax.set_xlabel("LOO-PIT of the jump height H [-] (uniform if calibrated)")
         ax.set_ylabel("ECDF − uniform CDF [-]")
@@ -558,7 +566,6 @@ def plot_sbc_ecdf(
     Path
     """
     import arviz_plots as azp
-    from arviz_stats.ecdf_utils import ecdf_pit
     from matplotlib import pyplot as plt
 
     ds = _sbc_dataset(pit, phis)
@@ -575,12 +582,8 @@ def plot_sbc_ecdf(
             col_wrap=n_phi,
             figure_kwargs={"figsize": (2.8 * n_phi + 0.6, 2.3 * n_var + 0.6)},
         )
-    x, _, lower, upper = ecdf_pit(
-        np.linspace(0.0, 1.0, n), band_prob, 1000, rng=np.random.default_rng(seed)
-    )
     fig = pc.viz["figure"].item()
-    for ax in fig.axes:
-        ax.fill_between(x, lower - x, upper - x, step="post", color="0.75", alpha=0.5, lw=0)
+    _draw_uniform_band(fig, n, band_prob, seed)
     fig.suptitle(
         (title + "\n" if title else "")
         + f"ECDF - uniform of the normalised ranks ({n} replicates); grey: "
