@@ -111,7 +111,13 @@ _MODAL_SIZE = 14
 # amplitude) of x_f, |lam| of each mode
 _C_LINXEQ = _C_MODAL + 2 * _MODAL_SIZE
 _C_LINFC, _C_LINFS, _C_LINFA, _C_LINL1, _C_LINL2 = range(_C_LINXEQ + 1, _C_LINXEQ + 6)
-_C_SIZE = _C_LINXEQ + 6
+# the last contact regime's closed form (the block _C_LIN.._C_LINEND), keyed by unloading
+# slope, constant force of the unloading line and actuator coefficient: the robot often
+# returns to the same contact after a bounce
+_C_LINEND = _C_LINXEQ + 6
+_C_CKEY = _C_LINEND
+_C_CBLOCK = _C_CKEY + 4
+_C_SIZE = _C_CBLOCK + (_C_LINEND - _C_LIN)
 
 #: Grain-scale compaction length l_c [m] of the ``compaction`` term: the depth of intrusion
 #: over which a loose bed approaches its compacted state (about one poppy-seed diameter;
@@ -326,16 +332,28 @@ def _newton_root(a4, a3, a2, a1, a0, s):
     for _ in range(60):
         p = (((a4 * s + a3) * s + a2) * s + a1) * s + a0
         dp = ((4.0 * a4 * s + 3.0 * a3) * s + 2.0 * a2) * s + a1
-        if dp == 0.0:
+        d2 = dp.real * dp.real + dp.imag * dp.imag
+        if d2 == 0.0:
             return s, False
-        ds = p / dp
+        ds = p * dp.conjugate() / d2
         s -= ds
-        if abs(ds) <= 1e-15 * abs(s):
+        if ds.real * ds.real + ds.imag * ds.imag <= 1e-30 * (s.real * s.real + s.imag * s.imag):
             break
     r = abs(s)
     scale = (((a4 * r + abs(a3)) * r + a2) * r + a1) * r + a0
     p = (((a4 * s + a3) * s + a2) * s + a1) * s + a0
     return s, abs(p) <= 1e-11 * scale and s.imag > 0.0
+
+
+@njit(cache=True)
+def _damped_guess(om2, mu, mf, ks, cs):
+    """Eigenvalue estimate of a contact mode of undamped squared frequency ``om2``."""
+    den = ks - om2 * mu
+    if den == 0.0:
+        return complex(0.0, math.sqrt(om2))
+    dr = ks / den - 1.0  # rod minus foot displacement of the mode shape (foot 1)
+    sig = cs * dr * dr / (2.0 * (mu * (dr + 1.0) ** 2 + mf))
+    return complex(-sig, math.sqrt(max(om2 - sig * sig, 0.25 * om2)))
 
 
 @njit(cache=True)
@@ -366,14 +384,20 @@ def _lin_prepare(mode, c):
         nm = 2
         sb = c[_C_SUNL]
         fc = c[_C_FSMAX] - sb * c[_C_ZMAX]
+        key = c[_C_CKEY] == sb and c[_C_CKEY + 1] == fc and c[_C_CKEY + 2] == coef
+        if key and c[_C_CKEY + 3] != 0.0:  # the last contact's closed form
+            c[_C_LIN:_C_LINEND] = c[_C_CBLOCK : _C_CBLOCK + (_C_LINEND - _C_LIN)]
+            return
         a4, a3, a2, a1, a0 = mu * mf, cs * (mu + mf), mu * (ks + sb) + mf * ks, cs * sb, ks * sb
         disc = a2 * a2 - 4.0 * a4 * a0
         if disc <= 0.0 or a0 <= 0.0:
             return
         om_hi = (a2 + math.sqrt(disc)) / (2.0 * a4)  # undamped squared frequencies
         om_lo = a0 / (a4 * om_hi)
-        lam1, ok1 = _newton_root(a4, a3, a2, a1, a0, complex(0.0, math.sqrt(om_lo)))
-        lam2, ok2 = _newton_root(a4, a3, a2, a1, a0, complex(0.0, math.sqrt(om_hi)))
+        # Newton from the undamped modes with their first-order damping (the damping
+        # matrix projected on the undamped mode shape)
+        lam1, ok1 = _newton_root(a4, a3, a2, a1, a0, _damped_guess(om_lo, mu, mf, ks, cs))
+        lam2, ok2 = _newton_root(a4, a3, a2, a1, a0, _damped_guess(om_hi, mu, mf, ks, cs))
         if not (ok1 and ok2) or abs(lam1 - lam2) <= 1e-6 * abs(lam2):
             return
     wmax = w if coef != 0.0 else 0.0
@@ -414,6 +438,12 @@ def _lin_prepare(mode, c):
     c[_C_LINFS] = fsn
     c[_C_LINFA] = (1.0 + 1e-12) * math.hypot(fcs, fsn)
     c[_C_LIN] = 1.0
+    if mode == MODE_CONTACT:
+        c[_C_CKEY] = c[_C_SUNL]
+        c[_C_CKEY + 1] = fc
+        c[_C_CKEY + 2] = coef
+        c[_C_CKEY + 3] = 1.0
+        c[_C_CBLOCK : _C_CBLOCK + (_C_LINEND - _C_LIN)] = c[_C_LIN:_C_LINEND]
 
 
 @njit(cache=True)
@@ -709,6 +739,11 @@ def _glance(kind, t, y0, f0, y1, f1, h, mode, c, tol):
     g1 = _g(kind, y1, c)
     d0 = h * _gdot(kind, y0, f0, c)
     d1 = h * _gdot(kind, y1, f1, c)
+    gtol = _gtol(kind, c, tol)
+    # the interpolant never exceeds max(g0, g1) + 4/27 (|d0| + |d1|) (its slope basis
+    # functions are bounded by 4/27): most steps end here
+    if max(g0, g1) + (4.0 / 27.0) * (abs(d0) + abs(d1)) <= -gtol:
+        return -1.0, y1, f1, g1
     # interior local maximum of the cubic interpolant: p'(th) = qa th^2 + qb th + qc = 0
     # with p''(th) = 2 qa th + qb < 0 (whatever the slopes at the ends of the step)
     qa = 6 * g0 + 3 * d0 - 6 * g1 + 3 * d1
@@ -725,7 +760,7 @@ def _glance(kind, t, y0, f0, y1, f1, h, mode, c, tol):
             for r in ((-qb - sq) / (2 * qa), (-qb + sq) / (2 * qa)):
                 if 0.0 < r < 1.0 and 2 * qa * r + qb < 0.0:
                     th = r
-    if not (0.0 < th < 1.0) or _hermite(th, g0, g1, d0, d1) <= -_gtol(kind, c, tol):
+    if not (0.0 < th < 1.0) or _hermite(th, g0, g1, d0, d1) <= -gtol:
         return -1.0, y1, f1, g1
     s = th * h
     ym, fm, _ = _step(t, y0, f0, s, mode, c, tol)
