@@ -12,8 +12,12 @@ events, so every non-smooth point of physics-model.md is an event the integrator
 
 Where the foot is not advancing (elastic contact on the unloading line, or no ground force)
 the robot is a linear 2-DOF system with constant or sinusoidal forcing; there the steps
-are its exact closed form (modal decomposition per regime, ``_lin_prepare``), sized only to
-bracket the events, unless ``OPT_CLOSED`` is 0 or the regime has no closed form.
+are its exact closed form (modal decomposition per regime, ``_lin_prepare``), unless
+``OPT_CLOSED`` is 0 or the regime has no closed form. Such a step is as long as bounds of
+the closed form prove free of events (``_lin_safe``: to the end of the actuator segment or
+of the height window if possible; ``max_step`` applies only when a trajectory is
+recorded); where no long step can be proved, steps of a fixed fraction of the fastest
+period bracket the events as Dormand-Prince steps do.
 
 Events are located on the step's cubic Hermite interpolant and then refined with real
 Runge-Kutta steps from the step start (safeguarded Newton in a bracket), so the state after
@@ -103,16 +107,32 @@ _C_COMP, _C_ZC, _C_FC, _C_MULT, _C_FSC, _C_SUNL = 21, 22, 23, 24, 25, 26
 _C_LIN, _C_LINW, _C_NMODE, _C_COMK = 27, 28, 29, 30
 _C_MODAL = 31
 _MODAL_SIZE = 14
-_C_SIZE = _C_MODAL + 2 * _MODAL_SIZE
+# per regime: equilibrium x_f in contact, actuator particular motion (cos, sin coefficients,
+# amplitude) of x_f, |lam| of each mode
+_C_LINXEQ = _C_MODAL + 2 * _MODAL_SIZE
+_C_LINFC, _C_LINFS, _C_LINFA, _C_LINL1, _C_LINL2 = range(_C_LINXEQ + 1, _C_LINXEQ + 6)
+# the last contact regime's closed form (the block _C_LIN.._C_LINEND), keyed by unloading
+# slope, constant force of the unloading line and actuator coefficient: the robot often
+# returns to the same contact after a bounce
+_C_LINEND = _C_LINXEQ + 6
+_C_CKEY = _C_LINEND
+_C_CBLOCK = _C_CKEY + 4
+_C_SIZE = _C_CBLOCK + (_C_LINEND - _C_LIN)
 
 #: Grain-scale compaction length l_c [m] of the ``compaction`` term: the depth of intrusion
 #: over which a loose bed approaches its compacted state (about one poppy-seed diameter;
 #: docs/physics-model.md section 8).
 COMPACTION_LENGTH = 1e-3
 
-#: Step of the closed form in the linear regimes, in radians of the fastest mode (or of the
-#: actuator) at rtol = 1e-5: the states are exact, the steps only bracket the events.
+#: Step of the closed form in the linear regimes where no longer step is proved free of
+#: events, in radians of the fastest mode (or of the actuator) at rtol = 1e-5: the states
+#: are exact, the steps only bracket the events.
 LIN_THETA = 0.8
+#: Bisections of the longest event-free step between that step and the segment's end.
+LIN_BISECT = 5
+
+#: Tolerance of event location relative to the absolute integration tolerances.
+EVENT_TOL = 1e-4
 
 # events (each is g(y) crossing from <= 0 to > 0)
 _EV_NONE = -1
@@ -312,16 +332,28 @@ def _newton_root(a4, a3, a2, a1, a0, s):
     for _ in range(60):
         p = (((a4 * s + a3) * s + a2) * s + a1) * s + a0
         dp = ((4.0 * a4 * s + 3.0 * a3) * s + 2.0 * a2) * s + a1
-        if dp == 0.0:
+        d2 = dp.real * dp.real + dp.imag * dp.imag
+        if d2 == 0.0:
             return s, False
-        ds = p / dp
+        ds = p * dp.conjugate() / d2
         s -= ds
-        if abs(ds) <= 1e-15 * abs(s):
+        if ds.real * ds.real + ds.imag * ds.imag <= 1e-30 * (s.real * s.real + s.imag * s.imag):
             break
     r = abs(s)
     scale = (((a4 * r + abs(a3)) * r + a2) * r + a1) * r + a0
     p = (((a4 * s + a3) * s + a2) * s + a1) * s + a0
     return s, abs(p) <= 1e-11 * scale and s.imag > 0.0
+
+
+@njit(cache=True)
+def _damped_guess(om2, mu, mf, ks, cs):
+    """Eigenvalue estimate of a contact mode of undamped squared frequency ``om2``."""
+    den = ks - om2 * mu
+    if den == 0.0:
+        return complex(0.0, math.sqrt(om2))
+    dr = ks / den - 1.0  # rod minus foot displacement of the mode shape (foot 1)
+    sig = cs * dr * dr / (2.0 * (mu * (dr + 1.0) ** 2 + mf))
+    return complex(-sig, math.sqrt(max(om2 - sig * sig, 0.25 * om2)))
 
 
 @njit(cache=True)
@@ -352,17 +384,24 @@ def _lin_prepare(mode, c):
         nm = 2
         sb = c[_C_SUNL]
         fc = c[_C_FSMAX] - sb * c[_C_ZMAX]
+        key = c[_C_CKEY] == sb and c[_C_CKEY + 1] == fc and c[_C_CKEY + 2] == coef
+        if key and c[_C_CKEY + 3] != 0.0:  # the last contact's closed form
+            c[_C_LIN:_C_LINEND] = c[_C_CBLOCK : _C_CBLOCK + (_C_LINEND - _C_LIN)]
+            return
         a4, a3, a2, a1, a0 = mu * mf, cs * (mu + mf), mu * (ks + sb) + mf * ks, cs * sb, ks * sb
         disc = a2 * a2 - 4.0 * a4 * a0
         if disc <= 0.0 or a0 <= 0.0:
             return
         om_hi = (a2 + math.sqrt(disc)) / (2.0 * a4)  # undamped squared frequencies
         om_lo = a0 / (a4 * om_hi)
-        lam1, ok1 = _newton_root(a4, a3, a2, a1, a0, complex(0.0, math.sqrt(om_lo)))
-        lam2, ok2 = _newton_root(a4, a3, a2, a1, a0, complex(0.0, math.sqrt(om_hi)))
+        # Newton from the undamped modes with their first-order damping (the damping
+        # matrix projected on the undamped mode shape)
+        lam1, ok1 = _newton_root(a4, a3, a2, a1, a0, _damped_guess(om_lo, mu, mf, ks, cs))
+        lam2, ok2 = _newton_root(a4, a3, a2, a1, a0, _damped_guess(om_hi, mu, mf, ks, cs))
         if not (ok1 and ok2) or abs(lam1 - lam2) <= 1e-6 * abs(lam2):
             return
     wmax = w if coef != 0.0 else 0.0
+    xeq = fcs = fsn = 0.0
     for j in range(nm):
         lam = lam1 if j == 0 else lam2
         pr = cs * lam + ks
@@ -388,23 +427,71 @@ def _lin_prepare(mode, c):
             c[b + 2 * i] = v.real
             c[b + 2 * i + 1] = v.imag
         wmax = max(wmax, abs(lam))
+        c[_C_LINL1 + j] = abs(lam)
+        xeq += 2.0 * (pf * p0).real
+        fcs += 2.0 * (pf * pc).real
+        fsn += 2.0 * (pf * ps).real
     c[_C_NMODE] = nm
     c[_C_LINW] = wmax
+    c[_C_LINXEQ] = xeq
+    c[_C_LINFC] = fcs
+    c[_C_LINFS] = fsn
+    c[_C_LINFA] = (1.0 + 1e-12) * math.hypot(fcs, fsn)
     c[_C_LIN] = 1.0
+    if mode == MODE_CONTACT:
+        c[_C_CKEY] = c[_C_SUNL]
+        c[_C_CKEY + 1] = fc
+        c[_C_CKEY + 2] = coef
+        c[_C_CKEY + 3] = 1.0
+        c[_C_CBLOCK : _C_CBLOCK + (_C_LINEND - _C_LIN)] = c[_C_LIN:_C_LINEND]
 
 
 @njit(cache=True)
-def _lin_step(t, y, tau, c):
-    """Exact state at ``t + tau`` from state ``y`` at ``t`` in a linear regime."""
+def _lin_modal(t, y, c):
+    """Free modal amplitudes of state ``y`` at ``t`` in a linear regime.
+
+    Returns ``(a1, a2, c0, s0)``: the complex amplitudes ``a_j = q_j - q_p,j(t)`` of the
+    (one or two) modes about their particular motion (``a2 = 0`` when free) and the cosine
+    and sine of the actuator phase at ``t`` (0 if the actuator is idle).
+    """
     xr, xf, vr, vf = y
     mu, mf, cs = c[_C_M], c[_C_MF], c[_C_CS]
-    w, coef = c[_C_OMEGA], c[_C_SEGCOEF]
-    forced = coef != 0.0
-    c0 = s0 = c1 = s1 = 0.0
+    c0 = s0 = 0.0
+    forced = c[_C_SEGCOEF] != 0.0
     if forced:
-        th0 = w * (t - c[_C_SEGT0])
+        th0 = c[_C_OMEGA] * (t - c[_C_SEGT0])
+        c0, s0 = math.cos(th0), math.sin(th0)
+    a1 = a2 = 0j
+    for j in range(int(c[_C_NMODE])):
+        b = _C_MODAL + j * _MODAL_SIZE
+        lam = complex(c[b], c[b + 1])
+        pr = complex(c[b + 2], c[b + 3])
+        pf = complex(c[b + 4], c[b + 5])
+        ninv = complex(c[b + 6], c[b + 7])
+        q0 = (pr * ((lam * mu + cs) * xr - cs * xf + mu * vr)
+              + pf * ((lam * mf + cs) * xf - cs * xr + mf * vf)) * ninv  # fmt: skip
+        qp0 = complex(c[b + 8], c[b + 9])
+        if forced:
+            qp0 += complex(c[b + 10], c[b + 11]) * c0 + complex(c[b + 12], c[b + 13]) * s0
+        if j == 0:
+            a1 = q0 - qp0
+        else:
+            a2 = q0 - qp0
+    return a1, a2, c0, s0
+
+
+@njit(cache=True)
+def _lin_eval(t, y, tau, a1, a2, c0, s0, c):
+    """Exact state at ``t + tau`` from state ``y`` at ``t`` with modal amplitudes
+    ``_lin_modal(t, y, c)``."""
+    xr, xf, vr, vf = y
+    mu, mf = c[_C_M], c[_C_MF]
+    w = c[_C_OMEGA]
+    forced = c[_C_SEGCOEF] != 0.0
+    c1 = s1 = 0.0
+    if forced:
         th1 = w * (t + tau - c[_C_SEGT0])
-        c0, s0, c1, s1 = math.cos(th0), math.sin(th0), math.cos(th1), math.sin(th1)
+        c1, s1 = math.cos(th1), math.sin(th1)
     nm = int(c[_C_NMODE])
     nxr = nxf = nvr = nvf = 0.0
     if nm == 1:  # free: the centre of mass falls freely, pushed by the actuator
@@ -424,22 +511,148 @@ def _lin_step(t, y, tau, c):
         lam = complex(c[b], c[b + 1])
         pr = complex(c[b + 2], c[b + 3])
         pf = complex(c[b + 4], c[b + 5])
-        ninv = complex(c[b + 6], c[b + 7])
-        q0 = (pr * ((lam * mu + cs) * xr - cs * xf + mu * vr)
-              + pf * ((lam * mf + cs) * xf - cs * xr + mf * vf)) * ninv  # fmt: skip
-        qp0 = qp1 = complex(c[b + 8], c[b + 9])
+        qp1 = complex(c[b + 8], c[b + 9])
         if forced:
-            pc = complex(c[b + 10], c[b + 11])
-            ps = complex(c[b + 12], c[b + 13])
-            qp0 += pc * c0 + ps * s0
-            qp1 += pc * c1 + ps * s1
-        q = cmath.exp(lam * tau) * (q0 - qp0) + qp1
+            qp1 += complex(c[b + 10], c[b + 11]) * c1 + complex(c[b + 12], c[b + 13]) * s1
+        q = cmath.exp(lam * tau) * (a1 if j == 0 else a2) + qp1
         lq = lam * q
         nxr += 2.0 * (pr * q).real
         nxf += 2.0 * (pf * q).real
         nvr += 2.0 * (pr * lq).real
         nvf += 2.0 * (pf * lq).real
     return (nxr, nxf, nvr, nvf)
+
+
+@njit(cache=True)
+def _lin_step(t, y, tau, c):
+    """Exact state at ``t + tau`` from state ``y`` at ``t`` in a linear regime."""
+    a1, a2, c0, s0 = _lin_modal(t, y, c)
+    return _lin_eval(t, y, tau, a1, a2, c0, s0, c)
+
+
+@njit(cache=True)
+def _env_lo(x0, x1, b, r, tau):
+    """Lower bound of min over [0, tau] of a component with value x0, slope x1 at 0,
+    |second derivative| <= b and |value| <= r throughout."""
+    return max(-r, min(x0, x0 + tau * (x1 - 0.5 * b * tau)))
+
+
+@njit(cache=True)
+def _env_hi(x0, x1, b, r, tau):
+    """Upper bound of max over [0, tau] (see ``_env_lo``)."""
+    return min(r, max(x0, x0 + tau * (x1 + 0.5 * b * tau)))
+
+
+@njit(cache=True)
+def _lin_safe(t, y, a1, a2, c0, s0, c, lo, hi, top, tau_fix, tau_max):
+    """Longest step in a linear regime that provably contains no event.
+
+    Over a step ``[t, t + tau]`` the foot height must stay inside ``(lo, hi)`` (the regime's
+    event thresholds) and, if ``top`` is finite (the height window is open), produce no new
+    maximum: either ``x_f <= top`` throughout or ``x_f' > 0`` throughout. The closed form
+    (modal amplitudes ``a1, a2`` and actuator phase ``c0, s0`` from ``_lin_modal``) is
+    split into an exact part (the centre of mass in free fall, or the equilibrium in
+    contact) and components bounded by their value and slope at ``t``, a bound on their
+    curvature and a bound on their range: each mode ``2 Re(phi_f a e^(lam s))`` by ``2
+    |phi_f a|`` (its modes are damped), the actuator's particular motion by its amplitude,
+    its push on the free centre of mass by its curvature. The bounds are monotone in
+    ``tau``. Returns the largest such ``tau`` in ``[tau_fix, tau_max]`` (by bisection, to
+    a few per cent), or 0 if not even ``tau_fix`` can be proved event-free.
+    """
+    w = c[_C_OMEGA]
+    forced = c[_C_SEGCOEF] != 0.0
+    nm = int(c[_C_NMODE])
+    # exact part p0 + p1 s + p2 s^2 / 2; kb: curvature bound of the actuator's push on the
+    # free centre of mass (zero value and slope at s = 0)
+    p1 = p2 = kb = 0.0
+    if nm == 1:
+        mu, mf = c[_C_M], c[_C_MF]
+        mt = mu + mf
+        p0 = (mu * y[0] + mf * y[1]) / mt
+        p1 = (mu * y[2] + mf * y[3]) / mt
+        p2 = -G
+        if forced:
+            kb = abs(c[_C_COMK]) * w * w
+    else:
+        p0 = c[_C_LINXEQ]
+    # the actuator's particular motion Fc cos + Fs sin of its phase
+    famp = f0 = f1 = f2 = 0.0
+    if forced:
+        fc, fs = c[_C_LINFC], c[_C_LINFS]
+        famp = c[_C_LINFA]
+        f0 = fc * c0 + fs * s0
+        f1 = w * (fs * c0 - fc * s0)
+        f2 = -w * w * f0
+    # the modes: value, slope and second derivative of 2 Re(phi_f a e^(lam s)) at s = 0,
+    # its range (inflated against rounding) and |lam|
+    b = _C_MODAL
+    lam = complex(c[b], c[b + 1])
+    z = complex(c[b + 4], c[b + 5]) * a1
+    zl = z * lam
+    m0, m1, m2 = 2.0 * z.real, 2.0 * zl.real, 2.0 * (zl * lam).real
+    ma = 2.0 * (1.0 + 1e-12) * math.sqrt(z.real * z.real + z.imag * z.imag)
+    ml = c[_C_LINL1]
+    n0 = n1 = n2 = na = nl = 0.0
+    if nm == 2:
+        b = _C_MODAL + _MODAL_SIZE
+        lam = complex(c[b], c[b + 1])
+        z = complex(c[b + 4], c[b + 5]) * a2
+        zl = z * lam
+        n0, n1, n2 = 2.0 * z.real, 2.0 * zl.real, 2.0 * (zl * lam).real
+        na = 2.0 * (1.0 + 1e-12) * math.sqrt(z.real * z.real + z.imag * z.imag)
+        nl = c[_C_LINL2]
+    mb2, mb3 = ma * ml * ml, ma * ml * ml * ml
+    nb2, nb3 = na * nl * nl, na * nl * nl * nl
+    fb2, fb3 = famp * w * w, famp * w * w * w
+    apex = top < np.inf
+    lo_m = lo + 1e-12
+    hi_m = min(hi, top) - 1e-12
+    ok_hi = hi - 1e-12
+    tau_ok = 0.0
+    tau = tau_max
+    lo_t = tau_fix
+    hi_t = tau_max
+    for it in range(2 + LIN_BISECT):
+        # bounds of x_f (and of x_f') over [0, tau]
+        if p2 < 0.0:
+            xmin = min(p0, p0 + tau * (p1 + 0.5 * p2 * tau))
+            sm = min(max(-p1 / p2, 0.0), tau)
+            xmax = p0 + sm * (p1 + 0.5 * p2 * sm)
+        else:
+            xmin = xmax = p0
+        xmin += _env_lo(m0, m1, mb2, ma, tau) - 0.5 * kb * tau * tau
+        xmax += _env_hi(m0, m1, mb2, ma, tau) + 0.5 * kb * tau * tau
+        if nm == 2:
+            xmin += _env_lo(n0, n1, nb2, na, tau)
+            xmax += _env_hi(n0, n1, nb2, na, tau)
+        if forced:
+            xmin += _env_lo(f0, f1, fb2, famp, tau)
+            xmax += _env_hi(f0, f1, fb2, famp, tau)
+        good = xmin > lo_m and xmax < ok_hi
+        if good and not xmax < hi_m:
+            # no new maximum of x_f unless it is the step's end: x_f' > 0 throughout
+            vmin = min(p1, p1 + p2 * tau) - kb * tau + _env_lo(m1, m2, mb3, ma * ml, tau)
+            if nm == 2:
+                vmin += _env_lo(n1, n2, nb3, na * nl, tau)
+            if forced:
+                vmin += _env_lo(f1, f2, fb3, famp * w, tau)
+            good = apex and vmin > 0.0
+        if it == 0:
+            if good:
+                return tau
+            tau = tau_fix
+            continue
+        if it == 1:
+            if not good:
+                return 0.0
+            tau_ok = tau_fix
+        elif good:
+            lo_t = tau
+            tau_ok = tau
+        else:
+            hi_t = tau
+        tau = math.sqrt(lo_t * hi_t)
+    return tau_ok
 
 
 @njit(cache=True)
@@ -480,13 +693,26 @@ def _gdot(kind, y, f, c):
 
 
 @njit(cache=True)
-def _gtol(kind, c):
-    """Absolute tolerance on g at an event (positions 1e-13 m, velocities 1e-11 m/s)."""
+def _gddot(kind, f, c):
+    """Second time derivative of a position event function (0 for velocity events)."""
     if kind == _EV_REENTER or kind == _EV_TOUCH:
-        return 1e-13
+        return -f[1]
     if kind == _EV_RELEASE:
-        return 1e-13 * c[_C_SUNL]
-    return 1e-11
+        return c[_C_SUNL] * f[1]
+    return 0.0
+
+
+@njit(cache=True)
+def _gtol(kind, c, tol):
+    """Absolute tolerance on g at an event: ``EVENT_TOL`` times the absolute integration
+    tolerance, within 1e-13 to 1e-11 m on positions and 1e-11 to 1e-9 m/s on velocities
+    (the lower ends at converged settings, the upper ones at the defaults)."""
+    gx = min(1e-11, max(1e-13, EVENT_TOL * tol[1]))
+    if kind == _EV_REENTER or kind == _EV_TOUCH:
+        return gx
+    if kind == _EV_RELEASE:
+        return gx * c[_C_SUNL]
+    return min(1e-9, max(1e-11, EVENT_TOL * tol[2]))
 
 
 @njit(cache=True)
@@ -513,6 +739,11 @@ def _glance(kind, t, y0, f0, y1, f1, h, mode, c, tol):
     g1 = _g(kind, y1, c)
     d0 = h * _gdot(kind, y0, f0, c)
     d1 = h * _gdot(kind, y1, f1, c)
+    gtol = _gtol(kind, c, tol)
+    # the interpolant never exceeds max(g0, g1) + 4/27 (|d0| + |d1|) (its slope basis
+    # functions are bounded by 4/27): most steps end here
+    if max(g0, g1) + (4.0 / 27.0) * (abs(d0) + abs(d1)) <= -gtol:
+        return -1.0, y1, f1, g1
     # interior local maximum of the cubic interpolant: p'(th) = qa th^2 + qb th + qc = 0
     # with p''(th) = 2 qa th + qb < 0 (whatever the slopes at the ends of the step)
     qa = 6 * g0 + 3 * d0 - 6 * g1 + 3 * d1
@@ -529,7 +760,7 @@ def _glance(kind, t, y0, f0, y1, f1, h, mode, c, tol):
             for r in ((-qb - sq) / (2 * qa), (-qb + sq) / (2 * qa)):
                 if 0.0 < r < 1.0 and 2 * qa * r + qb < 0.0:
                     th = r
-    if not (0.0 < th < 1.0) or _hermite(th, g0, g1, d0, d1) <= -_gtol(kind, c):
+    if not (0.0 < th < 1.0) or _hermite(th, g0, g1, d0, d1) <= -gtol:
         return -1.0, y1, f1, g1
     s = th * h
     ym, fm, _ = _step(t, y0, f0, s, mode, c, tol)
@@ -553,6 +784,7 @@ def _locate(kind, t, y0, f0, y1, f1, h, mode, c, tol):
     # root of the cubic Hermite interpolant of g (g is affine in y): Illinois method
     a, fa, b, fb = 0.0, g0, 1.0, g1
     side = 0
+    th = 1.0
     for _ in range(60):
         th = (a * fb - b * fa) / (fb - fa)
         p = _hermite(th, g0, g1, d0, d1)
@@ -566,30 +798,53 @@ def _locate(kind, t, y0, f0, y1, f1, h, mode, c, tol):
             if side == 1:
                 fb *= 0.5
             side = 1
-        if b - a < 1e-13:
+        if b - a < 1e-13 or abs(p) <= 1e-10 * (abs(g0) + abs(g1)):
             break
-    # refine with real Runge-Kutta steps from the step start: safeguarded Newton
+    # refine with real Runge-Kutta steps from the step start (in a linear regime, exact
+    # closed-form states): safeguarded Newton, aimed at half the tolerance past the root
+    # so that a trial lands inside (0, gtol) and ends the search
     lo, hi = 0.0, h
     y_hi, f_hi = y1, f1
-    s = b * h
-    gtol = _gtol(kind, c)
+    s = th * h
+    gtol = _gtol(kind, c, tol)
+    apex = kind == _EV_APEX
+    gxp = _gtol(_EV_TOUCH, c, tol)
+    lin = c[_C_LIN] != 0.0
+    a1 = a2 = 0j
+    c0 = s0 = 0.0
+    if lin:
+        a1, a2, c0, s0 = _lin_modal(t, y0, c)
     for _ in range(80):
         if not (lo < s < hi):
             s = 0.5 * (lo + hi)
-        ys, fs, _ = _step(t, y0, f0, s, mode, c, tol)
+        if lin:
+            ys = _lin_eval(t, y0, s, a1, a2, c0, s0, c)
+            fs = _accel(t + s, ys[0], ys[1], ys[2], ys[3], mode, c)
+        else:
+            ys, fs, _ = _dopri_step(t, y0, f0, s, mode, c, tol)
         gs = _g(kind, ys, c)
         gd = _gdot(kind, ys, fs, c)
+        if apex and gs * gs <= 2.0 * abs(gd) * gxp:
+            # the height is stationary at the apex: a point within |g|^2 / (2 |g'|) of it
+            # (to second order) will do, on either side of the root
+            return s, ys, fs
         if gs > 0.0:
             hi, y_hi, f_hi = s, ys, fs
             if gs < gtol or hi - lo < 1e-12:
                 break
-            s = s - gs / gd if gd > 0.0 else 0.5 * (lo + hi)
         else:
             lo = s
             if hi - lo < 1e-12:
                 break
-            # aim just beyond the Newton root so that the next trial lands past it
-            s = s - gs / gd + 1e-12 if gd > 0.0 else 0.5 * (lo + hi)
+        if gd > 0.0:
+            # Newton on the local quadratic model for position events (their second
+            # derivative is known), on the linear one for velocity events
+            r = gs - 0.5 * gtol
+            gdd = _gddot(kind, fs, c)
+            disc = gd * gd - 2.0 * gdd * r
+            s = s - (2.0 * r / (gd + math.sqrt(disc)) if disc > 0.0 else r / gd)
+        else:
+            s = 0.5 * (lo + hi)
     return hi, y_hi, f_hi
 
 
@@ -776,22 +1031,73 @@ def simulate_one(row, seg, meta, opts, rec, record):
     # steps of the closed form resolve the events: a fraction of the fastest period,
     # shrinking with the tolerance as Dormand-Prince steps would
     lin_theta = LIN_THETA * min(1.0, tol[0] / 1e-5) ** 0.2
+    # the closed form's steps are exact: only a recorded trajectory (plots) needs max_step
+    lin_hmax = hmax if record else np.inf
 
     n_rec = _record(rec, 0, t, y, mode, c) if record else 0
     in_window = push == 0
     height = y[1] if in_window else -np.inf
     h = min(1e-4, hmax)
     n_steps = 0
+    f_ok = True
     while True:
         if n_steps >= max_steps:
             return np.nan, STATUS_STEP_LIMIT, n_steps, n_rec
         t_stop = seg[si, 0] if si < nseg else t_final
         remaining = t_stop - t
         lin = c[_C_LIN] != 0.0
-        h_next = min(lin_theta / c[_C_LINW], hmax) if lin else h
+        safe = False
+        modal = False
+        a1 = a2 = 0j
+        c0 = s0 = 0.0
+        if lin:
+            h_next = min(lin_theta / c[_C_LINW], hmax)
+            tau_max = min(remaining, lin_hmax)
+            if tau_max > h_next:
+                # the longest step that provably contains no event (0 if none is longer)
+                if mode == MODE_CONTACT:
+                    lo, hi = -c[_C_ZMAX], -c[_C_ZFREE]
+                else:
+                    lo, hi = -c[_C_ZFREE], np.inf
+                if si >= nseg and y[1] >= 0.0:
+                    lo = max(lo, 0.0)  # touchdown ends the jump
+                top = height if in_window else np.inf
+                a1, a2, c0, s0 = _lin_modal(t, y, c)
+                modal = True
+                tau = _lin_safe(t, y, a1, a2, c0, s0, c, lo, hi, top, h_next, tau_max)
+                if tau > h_next:
+                    h_next = tau
+                    safe = True
+        else:
+            h_next = h
         landing = h_next >= remaining * (1.0 - 1e-12)
         h_try = remaining if landing else h_next
-        y1, f1, err = _step(t, y, f, h_try, mode, c, tol)
+        if mode == MODE_ADVANCING:
+            first, last = _EV_ADV_EXIT, _EV_ADV_EXIT
+        elif mode == MODE_CONTACT:
+            first, last = _EV_REENTER, _EV_RELEASE
+        else:
+            first, last = _EV_TOUCH, _EV_TOUCH
+        if safe:
+            y1 = _lin_eval(t, y, h_try, a1, a2, c0, s0, c)
+            f1 = f  # not needed unless the step turns out to be an ordinary one
+            err = 0.0
+            for kind in range(first, last + 1):
+                if _g(kind, y1, c) > 0.0:  # only if rounding defeated the bound
+                    safe = False
+            if not safe:
+                if not f_ok:
+                    f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
+                f1 = _accel(t + h_try, y1[0], y1[1], y1[2], y1[3], mode, c)
+        else:
+            if not f_ok:
+                f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
+            if modal:  # an ordinary closed-form step: the modal amplitudes are at hand
+                y1 = _lin_eval(t, y, h_try, a1, a2, c0, s0, c)
+                f1 = _accel(t + h_try, y1[0], y1[1], y1[2], y1[3], mode, c)
+                err = 0.0
+            else:
+                y1, f1, err = _step(t, y, f, h_try, mode, c, tol)
         n_steps += 1
         if not math.isfinite(err):
             h = 0.25 * h_try
@@ -806,13 +1112,9 @@ def simulate_one(row, seg, meta, opts, rec, record):
         # accepted step [t, t + h_try]: the earliest regime event inside it, if any
         event = _EV_NONE
         s_end = h_try
-        if mode == MODE_ADVANCING:
-            first, last = _EV_ADV_EXIT, _EV_ADV_EXIT
-        elif mode == MODE_CONTACT:
-            first, last = _EV_REENTER, _EV_RELEASE
-        else:
-            first, last = _EV_TOUCH, _EV_TOUCH
         for kind in range(first, last + 1):
+            if safe:
+                break  # proved event-free
             g0 = _g(kind, y, c)
             if g0 > 0.0:
                 continue
@@ -827,19 +1129,21 @@ def simulate_one(row, seg, meta, opts, rec, record):
                 s_end, event, y1, f1 = s, kind, ye, fe
         # jump height: endpoint and interior maximum of x_f
         if in_window:
-            if y[3] > 0.0 and y1[3] < 0.0:
+            if y[3] > 0.0 and y1[3] < 0.0 and not safe:
                 _, ya, _ = _locate(_EV_APEX, t, y, f, y1, f1, s_end, mode, c, tol)
                 height = max(height, ya[1])
             height = max(height, y1[1])
         touchdown = si >= nseg and y[1] >= 0.0 and y1[1] < 0.0
         t = t_stop if (landing and event == _EV_NONE) else t + s_end
         y, f = y1, f1
+        f_ok = not safe  # after a proved step f is computed when (if) it is needed
         if not (math.isfinite(y[0]) and math.isfinite(y[1]) and math.isfinite(y[2])
                 and math.isfinite(y[3])):  # fmt: skip
             return np.nan, STATUS_NONFINITE, n_steps, n_rec
         if event != _EV_NONE:
             mode = _switch(event, y, c)
             f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
+            f_ok = True
             if closed:
                 _lin_prepare(mode, c)
         elif landing:
@@ -849,6 +1153,7 @@ def simulate_one(row, seg, meta, opts, rec, record):
                 in_window = True
                 height = max(height, y[1])
             f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
+            f_ok = True
             if closed:
                 _lin_prepare(mode, c)
         if record:

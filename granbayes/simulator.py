@@ -78,7 +78,9 @@ class SolverOptions:
     atol_velocity : float
         Absolute tolerance on velocities [m/s].
     max_step : float
-        Largest step [s].
+        Largest step [s] of the numerical (Dormand-Prince) integration. The closed form's
+        steps in the linear regimes are exact and as long as they provably contain no
+        event; they are limited by ``max_step`` only when a trajectory is recorded.
     max_steps : int
         Step budget per jump; exceeding it gives ``Status.STEP_LIMIT``.
     window_after : float

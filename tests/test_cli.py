@@ -162,8 +162,10 @@ def test_trajectory_csv_and_plot(tmp_path: Path, capsys: pytest.CaptureFixture[s
 
 
 def test_failed_jump_exit_code_3(capsys: pytest.CaptureFixture[str]) -> None:
-    # a near-rigid bed that never lets go of the foot exhausts the step budget
-    code, out, _ = run(capsys, *ONE_JUMP[:-1], "k=1e9", "--param", "r_unload=1e6", "--json")
+    # a near-rigid, hugely viscous bed (stiff advancing) exhausts the step budget
+    code, out, _ = run(
+        capsys, *ONE_JUMP[:-1], "k=1e9", "--param", "r_unload=1e6", "--param", "b=1e6", "--json"
+    )
     assert code == EXIT_FAILED_JUMP
     record = json.loads(out)
     assert record["status"].startswith("failed:")

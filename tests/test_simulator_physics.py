@@ -993,12 +993,12 @@ def test_bad_rows_give_bad_input_status_and_nan_without_raising() -> None:
 
 
 def test_step_budget_exhaustion_gives_step_limit_status() -> None:
-    """max_steps = 50 (a jump needs ~100) gives STEP_LIMIT and NaN, in batches and trajectories."""
-    options = SolverOptions(max_steps=50)
+    """max_steps = 20 (a jump needs ~50) gives STEP_LIMIT and NaN, in batches and trajectories."""
+    options = SolverOptions(max_steps=20)
     res = simulate("single", [0.6, 0.6], {"k": [3000.0, 5000.0]}, options=options)
     assert np.all(res.status == Status.STEP_LIMIT)
     assert np.all(np.isnan(res.height_mm))
-    assert np.all(res.n_steps == 50)
+    assert np.all(res.n_steps == 20)
     traj = simulate_trajectory("single", 0.6, {"k": 3000.0}, options=options)
     assert traj.status == Status.STEP_LIMIT and math.isnan(traj.height_mm)
 
