@@ -39,9 +39,11 @@ the choice among candidates; the calibration study measures that bias.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
-from collections.abc import Callable, Mapping, Sequence
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
@@ -52,7 +54,7 @@ from scipy import stats
 from . import datatree as gdt
 from ._provenance import environment
 from .experiment import Experiment
-from .fitting import FitConfig, FitResult, fit
+from .fitting import FitConfig, FitResult, fit, screen
 from .forces import TERMS, terms_of
 from .likelihood import Observations
 from .priors import Prior
@@ -108,6 +110,16 @@ class DiagnoseConfig:
     nested_tolerance : float
         ELPD deficit [nats] (beyond 2 SE) of an extension below its nested parent that is
         taken as a sampling failure and rerun.
+    screen : bool
+        Screen the candidates before fitting them (:func:`granbayes.fitting.screen`): in
+        order of their largest log-likelihood gain, a candidate gets a full posterior
+        only if that gain reaches ``min_gain`` and the best ELPD gain of the converged
+        candidates fitted before it less ``screen_margin``; the others cannot win and are
+        listed as screened out.
+    screen_margin : float
+        Allowance [nats] for an ELPD gain above the screened log-likelihood gain (a badly
+        misspecified parent has a large effective number of parameters, which an
+        extension can remove).
     n_threads : int, optional
         numba threads for the simulator.
     """
@@ -123,6 +135,8 @@ class DiagnoseConfig:
     kfold: int = 5
     max_refits: int = 10
     nested_tolerance: float = 4.0
+    screen: bool = True
+    screen_margin: float = 2.0
     n_threads: int | None = None
 
     def candidate_terms(self, current: Sequence[str]) -> list[str]:
@@ -417,6 +431,9 @@ class FitBank:
         self.priors, self.seed, self.data_source, self.log = priors, seed, data_source, log
         self.progress = progress
         self.fits: dict[tuple[str, ...], FitResult] = {}
+        self.screens: dict[tuple[str, ...], float] = {}
+        #: Wall time [s] spent per kind of work (``diagnosis.json``'s ``timing_s``).
+        self.seconds: dict[str, float] = {"fits": 0.0, "screening": 0.0, "held_out_refits": 0.0}
         self.loos: dict[tuple[str, ...], dict] = {}
         self.records: dict[tuple[str, ...], FitRecord] = {}
 
@@ -465,6 +482,18 @@ class FitBank:
             return self.fits[key]
         parent_key = terms_of(parent) if parent is not None else None
         self.log(f"  fitting {' + '.join(key)} ...")
+        with self._timed("fits"):
+            return self._get(key, parent_key)
+
+    @contextlib.contextmanager
+    def _timed(self, what: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[what] += time.perf_counter() - t0
+
+    def _get(self, key: tuple[str, ...], parent_key: tuple[str, ...] | None) -> FitResult:
         result, notes, reruns = self._run(key, parent_key, 0), [], 0
         if not result.converged:
             notes += result.warnings
@@ -487,20 +516,45 @@ class FitBank:
         self.records[key] = FitRecord(key, result.converged, tuple(notes), reruns)
         return result
 
+    def screen(self, terms: Sequence[str], parent: Sequence[str]) -> float:
+        """Largest log-likelihood gain [nats] of law ``terms`` over its fitted ``parent``."""
+        key = terms_of(terms)
+        if key not in self.screens:
+            with self._timed("screening"):
+                self.screens[key] = screen(
+                    self.experiment,
+                    self.table,
+                    self._fit_config(key),
+                    self.fits[terms_of(parent)].datatree,
+                    seed=self._law_seed(key, 99),
+                    priors=self.priors,
+                )
+        return self.screens[key]
+
     def converged(self, key: tuple[str, ...]) -> bool:
         """Whether the (final) fit of law ``key`` converged."""
         return self.records[key].converged
 
     # held-out predictions (fallbacks for bad Pareto k)
     def _heldout(self, key, train: pd.DataFrame, seed: int) -> FitResult:
-        return fit(
-            self.experiment,
-            train,
-            self._fit_config(key),
-            seed=seed,
-            priors=self.priors,
-            warm_start=self.fits[key].datatree,
-        )
+        """A fit without some jumps, warm-started from the full fit (lighter settings).
+
+        It only has to predict the held-out jumps' density, a posterior mean over its
+        draws: half the effective sample size and two ensembles (one from the full
+        posterior, one dispersed) suffice for that.
+        """
+        config = self._fit_config(key)
+        s = config.sampler
+        config = replace(config, sampler=replace(s, n_ensembles=2, min_ess=s.min_ess / 2))
+        with self._timed("held_out_refits"):
+            return fit(
+                self.experiment,
+                train,
+                config,
+                seed=seed,
+                priors=self.priors,
+                warm_start=self.fits[key].datatree,
+            )
 
     def exact_loo(self, key: tuple[str, ...], points: Sequence[int]) -> dict[int, float]:
         """Exact leave-one-out ELPD of the given jumps: one warm-started refit per jump.
@@ -601,9 +655,13 @@ class Candidate:
         Root-mean-square residual of the extended law [mm].
     max_pareto_k : float
     method : str
-        How the ELPD was estimated (``psis-loo``, with exact refits or K-fold).
+        How the ELPD was estimated (``psis-loo``, with exact refits or K-fold), or
+        ``screened out`` (no full fit: the numbers above are NaN).
     converged : bool
         Whether its fit converged (an unconverged candidate cannot be selected).
+    screen_gain : float
+        Largest log-likelihood gain over the current law found by the screening search
+        [nats] (NaN when screening is off).
     """
 
     term: str
@@ -618,10 +676,19 @@ class Candidate:
     max_pareto_k: float
     method: str
     converged: bool
+    screen_gain: float = float("nan")
+
+    @property
+    def screened_out(self) -> bool:
+        """Whether the candidate was screened out (never fully fitted)."""
+        return self.method.startswith("screened out")
 
     def to_json(self) -> dict:
-        """The ``diagnosis.json`` form (data-format.md names)."""
-        d = asdict(self)
+        """The ``diagnosis.json`` form (data-format.md names; NaN written as null)."""
+        d = {
+            k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in asdict(self).items()
+        }
         d["added"] = list(self.added)
         d["elpd_diff"] = d.pop("gain_vs_baseline")
         d["elpd_diff_se"] = d.pop("gain_vs_baseline_se")
@@ -694,6 +761,9 @@ class Diagnosis:
     added: list[str]
     record: dict
     fits: dict[tuple[str, ...], FitResult]
+    #: Wall time [s] per kind of work (fits, screening, held-out refits); not saved in
+    #: ``diagnosis.json``, which a rerun with the same seed reproduces bit for bit.
+    timing_s: dict[str, float] = field(default_factory=dict)
 
     @property
     def verdict(self) -> str:
@@ -718,11 +788,42 @@ def _score_round(
     added: list[str],
     round_no: int,
 ) -> list[Candidate]:
-    """Fit and score every candidate of a round (fallbacks where they decide)."""
-    loos = bank.loos
+    """Screen, fit and score the candidates of a round (fallbacks where they decide)."""
+    cfg, loos = bank.config, bank.loos
+    terms = cfg.candidate_terms(current)
+    screen_gain = {t: float("nan") for t in terms}
+    if cfg.screen:
+        screen_gain = {t: bank.screen((*current, t), current) for t in terms}
+        # most promising first; a failed screen (NaN) is fitted in full
+        terms = sorted(terms, key=lambda t: -np.nan_to_num(screen_gain[t], nan=np.inf))
     scored: list[tuple[Candidate, tuple[str, ...]]] = []
-    for term in bank.config.candidate_terms(current):
+    screened: list[Candidate] = []
+    best_gain = -np.inf
+    for term in terms:
         key = terms_of((*current, term))
+        bar = max(cfg.min_gain, best_gain - cfg.screen_margin)
+        if cfg.screen and screen_gain[term] < bar:
+            nan = float("nan")
+            screened.append(
+                Candidate(
+                    term=term,
+                    added=(*added, term),
+                    round=round_no,
+                    elpd=nan,
+                    gain=nan,
+                    gain_se=nan,
+                    gain_vs_baseline=nan,
+                    gain_vs_baseline_se=nan,
+                    rmse_mm=nan,
+                    max_pareto_k=nan,
+                    method=(
+                        f"screened out (log-likelihood gain {screen_gain[term]:+.1f} < {bar:.1f})"
+                    ),
+                    converged=False,
+                    screen_gain=screen_gain[term],
+                )
+            )
+            continue
         res = bank.get(key, parent=current)
         gain, se = gdt.elpd_difference(loos[key]["elpd_i"], loos[current]["elpd_i"])
         vs_base, vs_base_se = gdt.elpd_difference(loos[key]["elpd_i"], loos[base]["elpd_i"])
@@ -740,7 +841,10 @@ def _score_round(
             max_pareto_k=float(loos[key]["max_pareto_k"]),
             method="psis-loo (Pareto k > 0.7, not decisive)" if flagged else "psis-loo",
             converged=bank.converged(key),
+            screen_gain=screen_gain[term],
         )
+        if cand.converged:
+            best_gain = max(best_gain, gain)
         scored.append((cand, key))
     scored.sort(key=lambda ck: -ck[0].gain)
     # the decision rests on the best candidate and a runner-up within 2 SE of it: where
@@ -765,7 +869,7 @@ def _score_round(
                 method=method,
             )
         out.append(cand)
-    return out
+    return out + screened
 
 
 def diagnose(
@@ -823,6 +927,9 @@ def diagnose(
         log(f"Round {round_no}: trying {', '.join(cfg.candidate_terms(current))}")
         scored = _score_round(bank, pointwise, current, base, added, round_no)
         for c in scored:
+            if c.screened_out:
+                log(f"    + {c.term:<11} {c.method}")
+                continue
             log(
                 f"    + {c.term:<11} elpd gain {c.gain:+7.1f} ± {c.gain_se:4.1f}   "
                 f"rmse {c.rmse_mm:.2f} mm ({c.method}{'' if c.converged else ', NOT converged'})"
@@ -839,7 +946,9 @@ def diagnose(
     selected = bank.fits[current]
     after = residual_table(selected)
     record = _record(bank, pointwise, base, current, before, after, candidates, added, z_thr)
-    return Diagnosis(baseline, selected, before, after, candidates, added, record, bank.fits)
+    return Diagnosis(
+        baseline, selected, before, after, candidates, added, record, bank.fits, dict(bank.seconds)
+    )
 
 
 def _interval(values: np.ndarray, ci_prob: float) -> list[float]:
@@ -943,6 +1052,8 @@ def _record(
             "strong_gain": cfg.strong_gain,
             "family_alpha": cfg.family_alpha,
             "z_threshold": z_thr,
+            "screen": cfg.screen,
+            "screen_margin": cfg.screen_margin,
             "text": (
                 f"add the best converged candidate when its ELPD gain > {cfg.min_gain:g} "
                 f"nats and > {cfg.se_factor:g} SE, and the current law has a misfit cell "
@@ -950,6 +1061,13 @@ def _record(
                 f"over {len(before)} cells) or the gain exceeds {cfg.strong_gain:g} nats; "
                 f"at most {cfg.max_added} terms; misfit the selected law leaves gives "
                 "'misfit_remains'"
+                + (
+                    "; a candidate is fitted only if its screened log-likelihood gain reaches "
+                    f"{cfg.min_gain:g} nats and the best ELPD gain fitted before it less "
+                    f"{cfg.screen_margin:g}"
+                    if cfg.screen
+                    else ""
+                )
             ),
         },
         "seed": int(bank.seed),

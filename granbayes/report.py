@@ -603,22 +603,7 @@ def write_diagnosis_report(record: Mapping, selected: xr.DataTree, out: Path) ->
     lines += ["", f"Baseline misfit ({rec['n_misfit_cells']} cells with |z| > {z:.2f}):", ""]
     lines += [f"- {m['description']}" for m in worst] or ["- none"]
     lines += ["", "## Candidates (PSIS-LOO; exact refits or K-fold where Pareto k > 0.7)", ""]
-    cand = pd.DataFrame(
-        [
-            {
-                "round": c["round"],
-                "law": base_terms + "".join(f" + {t}" for t in c["added"]),
-                "elpd gain vs current": f"{c['elpd_diff_vs_current']:+.1f} ± "
-                f"{c['elpd_diff_vs_current_se']:.1f}",
-                "elpd gain vs baseline": f"{c['elpd_diff']:+.1f} ± {c['elpd_diff_se']:.1f}",
-                "rmse [mm]": f"{c['rmse_mm']:.2f}",
-                "max Pareto k": f"{c['max_pareto_k']:.2f}",
-                "method": c["method"],
-                "converged": "yes" if c["converged"] else "NO",
-            }
-            for c in rec["candidates"]
-        ]
-    )
+    cand = pd.DataFrame([_candidate_row(c, base_terms) for c in rec["candidates"]])
     lines += [markdown_table(cand) if len(cand) else "(none)", "", f"Rule: {rec['rule']['text']}."]
     lines += ["", "## Fits the decision rests on", ""]
     lines += [
@@ -632,6 +617,31 @@ def write_diagnosis_report(record: Mapping, selected: xr.DataTree, out: Path) ->
     (out / "report.md").write_text("\n".join(lines) + "\n")
     written.append(out / "report.md")
     return written
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    """A number of ``diagnosis.json`` (``null`` for not computed) as table text."""
+    return "-" if value is None else format(value, spec)
+
+
+def _candidate_row(c: Mapping, base_terms: str) -> dict[str, str]:
+    """One row of the candidates table (screened-out candidates have no ELPD)."""
+    screened = c["elpd_diff"] is None
+    return {
+        "round": str(c["round"]),
+        "law": base_terms + "".join(f" + {t}" for t in c["added"]),
+        "log-lik gain (screen)": _fmt(c.get("screen_gain"), "+.1f"),
+        "elpd gain vs current": "-"
+        if screened
+        else f"{c['elpd_diff_vs_current']:+.1f} ± {c['elpd_diff_vs_current_se']:.1f}",
+        "elpd gain vs baseline": "-"
+        if screened
+        else f"{c['elpd_diff']:+.1f} ± {c['elpd_diff_se']:.1f}",
+        "rmse [mm]": _fmt(c["rmse_mm"], ".2f"),
+        "max Pareto k": _fmt(c["max_pareto_k"], ".2f"),
+        "method": c["method"],
+        "converged": "-" if screened else ("yes" if c["converged"] else "NO"),
+    }
 
 
 def _verdict_lines(rec: Mapping, base_terms: str) -> list[str]:
@@ -656,7 +666,7 @@ def _verdict_lines(rec: Mapping, base_terms: str) -> list[str]:
     unconverged = [
         f"{c['term']} ({c['elpd_diff_vs_current']:+.1f} ± {c['elpd_diff_vs_current_se']:.1f})"
         for c in rec["candidates"]
-        if not c["converged"]
+        if not c["converged"] and c["elpd_diff"] is not None
     ]
     if sel["added"]:
         helped = (

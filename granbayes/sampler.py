@@ -39,6 +39,7 @@ cost a third of the sampling time here.)
 from __future__ import annotations
 
 import os
+import threading
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -111,7 +112,7 @@ class SamplerSettings:
     n_walkers: int = 8
     n_ensembles: int = 4
     max_steps: int = 20_000
-    check_every: int = 100
+    check_every: int = 50
     tau_factor: float = 10.0
     burn_factor: float = 3.0
     min_ess: float = 400.0
@@ -226,6 +227,113 @@ def _adapt(fn: LogProbFn, m: int) -> Callable[[np.ndarray], list]:
         return [(lp[i], blobs[i]) for i in range(len(lp))]
 
     return wrapped
+
+
+class _Lockstep:
+    """One call of the log-probability function for the requests of all ensembles.
+
+    emcee asks for the log-probability of half (or, with the snooker move, a quarter of)
+    an ensemble at a time: a handful of walkers, each call paying the same fixed cost
+    (Python, the simulator's dispatch over its threads). The ensembles of a run are
+    therefore stepped side by side, each in a thread of its own, and their requests are
+    collected until every still-running ensemble has made one; the calling thread then
+    evaluates them all in one call, in ensemble order, and hands each its rows. All
+    evaluations happen in the calling thread, one at a time, so the simulator's thread
+    pool (OpenMP, TBB or numba's workqueue, and numba's per-thread thread count) sees
+    the same single caller as without batching. The function works row by row, so the
+    values (and the chains) are those of stepping the ensembles one after another.
+    """
+
+    def __init__(self, fn: Callable[[np.ndarray], list]) -> None:
+        self._fn = fn
+        self._cond = threading.Condition()
+        self._active: set[int] = set()
+        self._pending: dict[int, np.ndarray] = {}
+        self._results: dict[int, list] = {}
+        self._error: BaseException | None = None
+
+    def port(self, index: int) -> Callable[[np.ndarray], list]:
+        """The log-probability function ensemble ``index`` is given."""
+
+        def request(x: np.ndarray) -> list:
+            if not self._active:  # not stepped side by side: evaluate directly
+                return self._fn(x)
+            with self._cond:
+                self._pending[index] = np.asarray(x, dtype=float)
+                self._cond.notify_all()
+                while index not in self._results and self._error is None:
+                    self._cond.wait()
+                if index not in self._results:
+                    raise _Aborted
+                return self._results.pop(index)
+
+        return request
+
+    def run(self, jobs: Sequence[Callable[[], None]]) -> None:
+        """Run ``jobs[i]`` (which steps ensemble ``i``) side by side until all return."""
+        failures: list[BaseException] = []
+
+        def worker(i: int) -> None:
+            try:
+                jobs[i]()
+            except _Aborted:
+                pass
+            except BaseException as exc:
+                failures.append(exc)
+            finally:
+                with self._cond:
+                    self._active.discard(i)
+                    if failures and self._error is None:
+                        self._error = failures[0]
+                    self._cond.notify_all()
+
+        with self._cond:
+            self._active = set(range(len(jobs)))
+            self._error = None
+        threads = [
+            threading.Thread(target=worker, args=(i,), daemon=True) for i in range(len(jobs))
+        ]
+        for t in threads:
+            t.start()
+        try:
+            self._serve()
+        finally:
+            with self._cond:
+                if self._active and self._error is None:
+                    self._error = _Aborted()
+                self._cond.notify_all()
+            for t in threads:
+                t.join()
+            with self._cond:
+                self._active = set()
+        if failures:
+            raise failures[0]
+
+    def _serve(self) -> None:
+        """Evaluate each complete batch of requests in the calling thread until done."""
+        while True:
+            with self._cond:
+                while (
+                    self._active
+                    and self._error is None
+                    and (len(self._pending) < len(self._active))
+                ):
+                    self._cond.wait()
+                if not self._active or self._error is not None:
+                    return
+                order = sorted(self._pending)
+                xs = [self._pending.pop(i) for i in order]
+            out = self._fn(np.concatenate(xs))  # outside the lock; may raise
+            with self._cond:
+                start = 0
+                for i, x in zip(order, xs, strict=True):
+                    self._results[i] = out[start : start + len(x)]
+                    start += len(x)
+                self._cond.notify_all()
+
+
+class _Aborted(Exception):
+    """Raised in an ensemble's thread when the run stops because of another failure."""
 
 
 def _tau(chain: np.ndarray) -> np.ndarray:
@@ -497,6 +605,7 @@ def run_ensembles(
     if n_walkers < 2 * ndim or n_walkers % 2:
         raise ValueError(f"{n_walkers} walkers: need an even number >= 2 x {ndim} dimensions")
     fn = _adapt(log_prob_fn, n_blobs)
+    lockstep = _Lockstep(fn)
     path = Path(checkpoint) if checkpoint is not None else None
     stored = load_checkpoint(path) if resume and path is not None else None
     notes: list[str] = []
@@ -513,12 +622,13 @@ def run_ensembles(
                 f"checkpoint {path} holds {len(stored.backends)} ensemble(s) of shape "
                 f"{sorted(shapes)}, not {len(initial)} of {(n_walkers, ndim)}"
             )
-        for backend, offset in stored.backends:
-            ens.append(_Ensemble(_make_sampler(fn, n_walkers, ndim, s, backend), offset, None))
+        for i, (backend, offset) in enumerate(stored.backends):
+            sampler = _make_sampler(lockstep.port(i), n_walkers, ndim, s, backend)
+            ens.append(_Ensemble(sampler, offset, None))
         notes = list(stored.notes)
     else:
-        for x, sub_seed in zip(initial, _spawn(seed, len(initial)), strict=True):
-            sampler = _make_sampler(fn, n_walkers, ndim, s)
+        for i, (x, sub_seed) in enumerate(zip(initial, _spawn(seed, len(initial)), strict=True)):
+            sampler = _make_sampler(lockstep.port(i), n_walkers, ndim, s)
             sampler.random_state = np.random.RandomState(sub_seed).get_state()
             ens.append(_Ensemble(sampler, 0, x))
     # the global step: every ensemble's chain ends there (offset + its own length)
@@ -540,16 +650,22 @@ def run_ensembles(
                 best = int(np.argmax(check.lp_median))
                 notes.append(_restart_note(stuck, best, check, done))
                 for i in stuck:
-                    ens[i] = _restart(ens[best], fn, n_walkers, ndim, s, seed, done, i, restarts)
+                    port = lockstep.port(i)
+                    ens[i] = _restart(ens[best], port, n_walkers, ndim, s, seed, done, i, restarts)
         n = min(c - done % c, s.max_steps - done)
+        lockstep.run([_advance(e, n) for e in ens])
         for e in ens:
-            e.sampler.run_mcmc(e.start, n, progress=False, store=True)
             e.start = None
         done += n
         if path is not None:
             save_checkpoint(path, [(e.sampler.backend, e.offset) for e in ens], fingerprint, notes)
     assert check is not None
     return _pool(ens, check, done, s, seed, notes, n_blobs)
+
+
+def _advance(e: _Ensemble, n: int) -> Callable[[], None]:
+    """Advance ensemble ``e`` by ``n`` steps (from its start, or where it stopped)."""
+    return lambda: e.sampler.run_mcmc(e.start, n, progress=False, store=True)
 
 
 def _progress(check: _Check, done: int, s: SamplerSettings, converged: bool) -> ProgressInfo:

@@ -567,7 +567,11 @@ def test_the_rule_not_the_fits_decides(drag_case, monkeypatch: pytest.MonkeyPatc
         return fits[key]
 
     monkeypatch.setattr(gc, "fit", cached_fit)
-    cfg = DiagnoseConfig(candidates=config.candidates, sampler=FAST, n_threads=1, min_gain=1e6)
+    # screening off: with it, a prohibitive min_gain would screen the candidate out
+    # before its fit (the screening test below covers that path)
+    cfg = DiagnoseConfig(
+        candidates=config.candidates, sampler=FAST, n_threads=1, min_gain=1e6, screen=False
+    )
     d = diagnose(Experiment(), table, cfg, seed=2, log=_quiet)
     assert ("depth",) in calls and ("depth", "drag") in calls
     rec = d.to_json()
@@ -639,3 +643,47 @@ def test_diagnose_bad_input_is_refused_before_any_fit(tmp_path: Path, capsys, mo
     assert code == 2 and "jumps.csv" in err and "row 3" in err and "command" in err
     assert len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+# ----------------------------------------------------------------------------------------
+# Candidate screening
+# ----------------------------------------------------------------------------------------
+
+
+def test_screen_gain_is_large_for_the_hidden_term_and_small_for_another(drag_case) -> None:
+    """The screening search finds the hidden drag's gain and little for an absent term.
+
+    Hidden drag (c_d = 150 kg/m) in 12 jumps: the drag law gains far more log-likelihood
+    than ``min_gain`` over depth alone, and the gain is at least the ELPD gain the full
+    fit measured (the screen bounds it from above, up to Monte Carlo error). The
+    stiffening term (absent from the data) gains less than ``min_gain``. Gains are >= 0
+    by construction (the search starts at the parent's best draw with the term off).
+    """
+    from granbayes.fitting import FitConfig, screen
+
+    table, _, d, _ = drag_case
+    parent = d.baseline.datatree
+    drag = screen(Experiment(), table, FitConfig(terms=("depth", "drag")), parent, seed=1)
+    (cand,) = [c for c in d.candidates if c.term == "drag"]
+    assert drag > DiagnoseConfig().min_gain
+    assert drag >= cand.gain - 2.0 * cand.gain_se
+    stiff = screen(Experiment(), table, FitConfig(terms=("depth", "stiffening")), parent, seed=1)
+    assert 0.0 <= stiff < DiagnoseConfig().min_gain
+
+
+def test_a_screened_out_candidate_is_listed_not_fitted(tmp_path: Path) -> None:
+    """Screening on: an absent term is screened out (no fit, null ELPD in diagnosis.json,
+    "screened out" in the report); the hidden drag is fitted and added as before."""
+    table = _table({"c_d": 150.0})
+    cfg = DiagnoseConfig(candidates=("drag", "stiffening"), sampler=FAST, n_threads=1)
+    d = diagnose(Experiment(), table, cfg, seed=2, log=_quiet)
+    rec = _strict_json(json.dumps(d.to_json()))
+    by_term = {c["term"]: c for c in rec["candidates"] if c["round"] == 1}
+    assert by_term["stiffening"]["method"].startswith("screened out")
+    assert by_term["stiffening"]["elpd_diff"] is None
+    assert by_term["stiffening"]["screen_gain"] < cfg.min_gain
+    assert by_term["drag"]["elpd_diff"] is not None
+    assert ["depth", "stiffening"] not in [f["terms"] for f in rec["fits"]]
+    assert d.added == ["drag"]
+    write_diagnosis_report(d.to_json(), d.selected.datatree, tmp_path)
+    assert "screened out" in (tmp_path / "report.md").read_text()

@@ -611,16 +611,18 @@ def test_library_resume_across_volume_fractions(
     """A fit interrupted in its second volume fraction resumes to the same posterior.
 
     The run of the first volume fraction is complete in its checkpoint and must be
-    reused; the second is interrupted at its 400th log-probability call (both ensembles
-    together; the first chunk of 50 steps costs about 2 x (1 + 2.4 x 50) calls), after
-    its first checkpoint (50 steps), and continues. The result equals the uninterrupted fit
+    reused; the second is interrupted at its 200th log-probability call, after its first
+    checkpoint (50 steps), and continues. The ensembles are evaluated together (one call
+    per step and split of the ensemble: 2 for the DE move, 4 for the snooker move, which
+    20% of the steps of each ensemble use), so a chunk of 50 steps costs about
+    1 + 2.7 x 50 calls. The result equals the uninterrupted fit
     bit for bit, in every group.
     """
     experiment, table = load_folder(two_phis)
     config = FitConfig(terms=("depth",), sampler=TINY, n_threads=1)
     backend = tmp_path / "chains"
     with monkeypatch.context() as m:
-        interrupt_sampling_after(m, 400, run=1)
+        interrupt_sampling_after(m, 200, run=1)
         with pytest.raises(KeyboardInterrupt):
             fit(experiment, table, config, seed=11, backend=backend)
     assert stored_steps(backend / "phi=0.602.h5") == [TINY.max_steps] * TINY.n_ensembles
@@ -787,21 +789,21 @@ def test_cli_resume_bit_identical(
 ) -> None:
     """An interrupted CLI fit continued with ``--resume`` reproduces the reference run.
 
-    The run is interrupted (KeyboardInterrupt) at its 700th log-probability call, in the
-    second chunk of 100 steps (a chunk of both ensembles costs about 2 x (1 + 2.4 x 100)
-    calls); OUT is not created and OUT.partial keeps the checkpoint of step 100.
+    The run is interrupted (KeyboardInterrupt) at its 200th log-probability call, in the
+    second chunk of 50 steps (a chunk of both ensembles, evaluated together, costs about
+    1 + 2.7 x 50 calls); OUT is not created and OUT.partial keeps the checkpoint of step 50.
     ``--resume`` then finishes it, and every array of posterior.nc equals that of the
     uninterrupted run with the same seed, bit for bit.
     """
     out = tmp_path / "OUT"
     argv = ["fit", str(one_phi), "--out", str(out), *CLI_FIT]
     with monkeypatch.context() as m:
-        interrupt_sampling_after(m, 700)
+        interrupt_sampling_after(m, 200)
         with pytest.raises(KeyboardInterrupt):
             main(argv)
     assert not out.exists()
     checkpoint = tmp_path / "OUT.partial" / "chains" / "phi=0.612.h5"
-    assert stored_steps(checkpoint) == [100, 100]  # the CLI checks every 100 steps
+    assert stored_steps(checkpoint) == [50, 50]  # the CLI checks every 50 steps
     assert main([*argv, "--resume"]) == EXIT_OK
     assert not (tmp_path / "OUT.partial").exists()
     resumed = read_datatree(out / "posterior.nc")

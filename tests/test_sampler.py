@@ -409,3 +409,52 @@ def test_restarts_survive_a_resume(tmp_path: Path) -> None:
         two_modes(30.0), initial, N_BLOBS, seed=4, settings=s, checkpoint=h5, resume=True
     )
     assert_same_run(resumed, reference)
+
+
+def test_ensembles_are_stepped_in_one_batch_with_their_own_chains() -> None:
+    """Lockstep batching: one call serves every ensemble, chains as if run one by one.
+
+    Each ensemble's chain must equal a plain emcee run from the same start and random
+    state (the seeds the sampler spawns), so batching changes the cost, not the result.
+    """
+    import emcee
+
+    from granbayes.sampler import _moves, _spawn
+
+    sizes: list[int] = []
+
+    def recording(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        sizes.append(len(x))
+        return gaussian(x)
+
+    settings = SamplerSettings(check_every=60, max_steps=60, n_draws=60)
+    initial = start()
+    run = run_ensemble(recording, initial, N_BLOBS, seed=5, settings=settings)
+    # one call of 32 starting points, then each ensemble asks 2 (DE: halves of 4 walkers)
+    # or 4 (snooker: quarters) times per step; one after another that is >= 4 x 2 x 60
+    # calls, batched at most 4 x 60 (the ensemble with the most snooker steps sets it)
+    assert sizes[0] == 32
+    assert len(sizes) - 1 <= 4 * 60 < 4 * 2 * 60
+    assert max(sizes[1:]) == 16
+    for i, sub_seed in enumerate(_spawn(5, len(initial))):
+        ref = emcee.EnsembleSampler(
+            8,
+            2,
+            lambda x: list(zip(*gaussian(x), strict=True)),
+            vectorize=True,
+            moves=_moves("de"),
+        )
+        ref.random_state = np.random.RandomState(sub_seed).get_state()
+        ref.run_mcmc(initial[i], 60, progress=False)
+        chain = np.swapaxes(run.samples[run.ensemble_of_chain == i], 0, 1)
+        np.testing.assert_array_equal(chain, ref.get_chain()[-chain.shape[0] :])
+
+
+def test_a_failing_log_prob_stops_every_ensemble() -> None:
+    """An exception inside the batched call reaches the caller (no thread left waiting)."""
+
+    def broken(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        raise ZeroDivisionError("model failed")
+
+    with pytest.raises(ZeroDivisionError, match="model failed"):
+        run_ensemble(broken, start(), N_BLOBS, seed=0, settings=SHORT)
