@@ -16,7 +16,9 @@ a resumed run then covers only the replicates it computed).
 
 Usage::
 
-    python benchmarks/sbc_reference.py                      # the study: >= 100 replicates
+    python benchmarks/sbc_reference.py --workers 2          # the study: >= 100 replicates
+    python benchmarks/sbc_reference.py --workers 1,2 --replicates 12 --name sbc_scaling \
+        --out /tmp/sbc-scaling                               # the scaling, 1 vs 2 workers
     python benchmarks/sbc_reference.py --replicates 4 --quick --out /tmp/sbc-check
 """
 
@@ -60,6 +62,11 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("sbc-reference"))
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--results", type=Path, default=RESULTS, help="folder of the timing report")
+    parser.add_argument(
+        "--name",
+        default=None,
+        help="stem of the timing report (default sbc_reference, or sbc_reference_quick)",
+    )
     args = parser.parse_args()
     worker_counts = [int(w) for w in args.workers.split(",")]
     simulate("single", 0.612, {"k": 3000.0})  # numba cache warm in this process
@@ -126,7 +133,7 @@ def main() -> None:
         "calibration": summary["parameters"],
     }
     args.results.mkdir(parents=True, exist_ok=True)
-    stem = "sbc_reference_quick" if args.quick else "sbc_reference"
+    stem = args.name or ("sbc_reference_quick" if args.quick else "sbc_reference")
     (args.results / f"{stem}.json").write_text(json.dumps(report, indent=2) + "\n")
     lines = [
         f"# SBC of fit (depth + drag) on the reference design ({report['date']})",

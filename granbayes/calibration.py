@@ -48,6 +48,7 @@ __all__ = [
     "OUT_OF_LIBRARY",
     "Case",
     "diagnose_case",
+    "diagnose_folder",
     "make_case",
     "rederive_verdicts",
     "summarize",
@@ -249,7 +250,76 @@ def diagnose_case(
             "all_converged": rec["all_converged"],
             "n_fits": len(rec["fits"]),
             "n_reruns": int(sum(f["reruns"] for f in rec["fits"])),
+            "n_screened_out": sum(
+                c["method"].startswith("screened out") for c in rec["candidates"]
+            ),
             "round1": _round1_json(round1),
+            "wall_time_s": time.perf_counter() - t0,
+        }
+    ]
+
+
+def diagnose_folder(
+    folder: str, *, seed: int, config: DiagnoseConfig | None = None
+) -> list[dict[str, Any]]:
+    """Campaign task: diagnose an experiment folder with one seed and summarise the outcome.
+
+    Used to check that a verdict does not depend on the seed (the same data diagnosed with
+    several seeds must give the same answer) and that no fitted candidate ends below its
+    nested parent (a sampling failure the robust sampler must prevent).
+
+    Parameters
+    ----------
+    folder : str
+        Experiment folder.
+    seed : int
+        Seed of the diagnosis.
+    config : DiagnoseConfig, optional
+
+    Returns
+    -------
+    list of dict
+        One row: verdict, added terms, ELPD gain, convergence, the number of fits, reruns
+        and screened-out candidates, the smallest ELPD gain of a fitted candidate over its
+        parent (``min_gain_vs_parent`` [nats] and its SE), every candidate's gain (JSON
+        text) and the wall time [s].
+    """
+    import json
+
+    from .experiment import load_experiment, load_jumps
+
+    experiment = load_experiment(folder)
+    table = load_jumps(folder, experiment)
+    t0 = time.perf_counter()
+    d = diagnose(experiment, table, config, seed=seed, data_source=str(folder), log=lambda *a: None)
+    rec = d.to_json()
+    fitted = [c for c in d.candidates if not c.screened_out]
+    worst = min(fitted, key=lambda c: c.gain - 2.0 * c.gain_se, default=None)
+    return [
+        {
+            "seed": int(seed),
+            "verdict": rec["verdict"],
+            "added": "+".join(rec["selected"]["added"]),
+            "elpd_gain": rec["selected"]["elpd_gain"],
+            "elpd_gain_se": rec["selected"]["elpd_gain_se"],
+            "all_converged": rec["all_converged"],
+            "n_fits": len(rec["fits"]),
+            "n_reruns": int(sum(f["reruns"] for f in rec["fits"])),
+            "n_screened_out": len(d.candidates) - len(fitted),
+            "min_gain_vs_parent": np.nan if worst is None else worst.gain,
+            "min_gain_vs_parent_se": np.nan if worst is None else worst.gain_se,
+            "candidates": json.dumps(
+                [
+                    {
+                        "round": c.round,
+                        "term": c.term,
+                        "gain": None if c.screened_out else round(c.gain, 2),
+                        "se": None if c.screened_out else round(c.gain_se, 2),
+                        "screen_gain": round(c.screen_gain, 2),
+                    }
+                    for c in d.candidates
+                ]
+            ),
             "wall_time_s": time.perf_counter() - t0,
         }
     ]
@@ -258,7 +328,7 @@ def diagnose_case(
 def _round1_json(candidates: Sequence[Mapping]) -> str:
     import json
 
-    keep = ("term", "elpd_diff_vs_current", "elpd_diff_vs_current_se", "converged")
+    keep = ("term", "elpd_diff_vs_current", "elpd_diff_vs_current_se", "converged", "screen_gain")
     return json.dumps([{k: c[k] for k in keep} for c in candidates])
 
 
@@ -275,7 +345,10 @@ def rederive_verdicts(
     The term the rule would add in round 1 (``""``: none) given the recorded candidates
     and baseline misfit. With ``family_alpha`` the misfit threshold is recomputed from the
     recorded number of cells and degrees of freedom; otherwise the recorded one is used.
-    Later rounds are not rederived (they need the fits of round 1's choice).
+    Later rounds are not rederived (they need the fits of round 1's choice). Candidates
+    screened out (no ELPD) count as not eligible, so thresholds below the screening bar
+    the study ran with (its ``min_gain``) are not rederived faithfully: sweep at or above
+    it.
 
     Parameters
     ----------
@@ -302,7 +375,11 @@ def rederive_verdicts(
             q = family_alpha / (2.0 * r.n_cells)
             thr = stats.t.isf(q, r.dof_min) if r.dof_min > 0 else stats.norm.isf(q)
         misfit = r.baseline_max_abs_z > thr
-        cands = [c for c in json.loads(r.round1) if c["converged"]]
+        cands = [
+            c
+            for c in json.loads(r.round1)
+            if c["converged"] and c["elpd_diff_vs_current"] is not None
+        ]
         if not cands:
             out.append("")
             continue

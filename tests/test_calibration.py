@@ -1,0 +1,113 @@
+"""Tests of the verdict calibration study's machinery (``granbayes.calibration``).
+
+The study itself (many diagnoses) is ``benchmarks/calibrate_verdicts.py``; here: the cases
+are deterministic and hold what they claim, the rederived round-1 decisions follow the
+rule (screened-out candidates are never eligible), and the error rates are counted right.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from granbayes.calibration import (
+    CASE_KINDS,
+    EFFECT_RANGES,
+    make_case,
+    rederive_verdicts,
+    summarize,
+)
+
+
+@pytest.mark.parametrize("kind", ["null", "drag", "pause_stiffening"])
+def test_cases_are_deterministic_and_labelled(kind: str) -> None:
+    """Same seed, same table; another seed, other data; every row says SYNTHETIC."""
+    a, b, c = make_case(kind, 3, trials=2), make_case(kind, 3, trials=2), make_case(kind, 4, 2)
+    pd.testing.assert_frame_equal(a.table, b.table)
+    assert not a.table["height_mm"].equals(c.table["height_mm"])
+    assert a.table["source"].str.startswith("synthetic").all()
+    assert len(a.table) == 2 * 2 * 5 * 2  # phis x freqs x commands x trials
+    if kind in EFFECT_RANGES:
+        ((name, (lo, hi)),) = EFFECT_RANGES[kind].items()
+        assert lo <= a.truth["effect"][name] <= hi
+    else:
+        assert a.truth["effect"] == {}
+
+
+def test_unknown_kind_is_refused() -> None:
+    with pytest.raises(ValueError, match="unknown case kind"):
+        make_case("friction", 0)
+    assert "null" in CASE_KINDS
+
+
+def _row(kind, candidates, max_z=5.0, verdict="extended", added="", residual=0):
+    return {
+        "kind": kind,
+        "verdict": verdict,
+        "added": added,
+        "n_residual_misfit": residual,
+        "all_converged": True,
+        "wall_time_s": 1.0,
+        "z_threshold": 3.5,
+        "n_cells": 20,
+        "dof_min": 40.0,
+        "baseline_max_abs_z": max_z,
+        "round1": json.dumps(candidates),
+    }
+
+
+def _cand(term, gain, se, converged=True, screen_gain=np.nan):
+    return {
+        "term": term,
+        "elpd_diff_vs_current": gain,
+        "elpd_diff_vs_current_se": se,
+        "converged": converged,
+        "screen_gain": screen_gain,
+    }
+
+
+def test_rederived_round1_follows_the_rule() -> None:
+    """The best eligible candidate is added iff gain > min_gain, > se_factor SE, and misfit
+    or gain > strong_gain; unconverged and screened-out candidates are never eligible."""
+    rows = [
+        _row("drag", [_cand("drag", 12.0, 3.0), _cand("viscous", 8.0, 3.0)]),  # clear
+        _row("drag", [_cand("drag", 5.0, 3.0)]),  # gain < 2 SE
+        _row("drag", [_cand("drag", 6.0, 2.0)], max_z=1.0),  # no misfit, gain < strong
+        _row("drag", [_cand("drag", 15.0, 2.0)], max_z=1.0),  # no misfit but strong gain
+        _row("drag", [_cand("drag", 30.0, 2.0, converged=False)]),  # unconverged
+        _row(  # screened out: no ELPD, never eligible
+            "null", [_cand("drag", None, None, converged=False, screen_gain=1.2)]
+        ),
+    ]
+    out = rederive_verdicts(
+        pd.DataFrame(rows), min_gain=4.0, se_factor=2.0, strong_gain=10.0
+    ).tolist()
+    assert out == ["drag", "", "", "drag", "", ""]
+    stricter = rederive_verdicts(pd.DataFrame(rows), min_gain=13.0, se_factor=2.0, strong_gain=10.0)
+    assert stricter.tolist() == ["", "", "", "drag", "", ""]
+
+
+def test_summarize_counts_right_answers_with_binomial_se() -> None:
+    """null: baseline_adequate; a term: extended with exactly it; outside the library:
+    misfit_remains or a law leaving no misfit."""
+    rows = [
+        _row("null", [], verdict="baseline_adequate"),
+        _row("null", [], verdict="extended", added="drag"),
+        _row("null", [], verdict="baseline_adequate"),
+        _row("null", [], verdict="misfit_remains"),
+        _row("drag", [], added="drag"),
+        _row("drag", [], added="viscous"),
+        _row("pause_stiffening", [], verdict="misfit_remains", added="stiffening", residual=3),
+        _row("pause_stiffening", [], verdict="extended", added="unloading", residual=0),
+    ]
+    s = summarize(pd.DataFrame(rows)).set_index("kind")
+    assert s.loc["null", "n"] == 4
+    assert s.loc["null", "right"] == 0.5
+    assert s.loc["null", "right_se"] == pytest.approx(np.sqrt(0.25 / 4))
+    assert s.loc["null", "wrong_term"] == 0.25
+    assert s.loc["drag", "right"] == 0.5 and s.loc["drag", "wrong_term"] == 0.5
+    assert s.loc["pause_stiffening", "right"] == 1.0
+    assert s.loc["pause_stiffening", "wrong_term"] == 0.0
