@@ -868,6 +868,12 @@ def _add_diagnose_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--candidates", help="comma-separated terms to try (default: every other term)"
     )
+    parser.add_argument(
+        "--no-screen",
+        action="store_true",
+        help="fit every candidate in full (default: candidates whose largest log-likelihood "
+        "gain cannot win are screened out without a full posterior)",
+    )
 
 
 def run_diagnose(args: argparse.Namespace) -> int:
@@ -892,6 +898,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     config = DiagnoseConfig(
         baseline=terms(args.baseline, "--baseline"),
         candidates=None if args.candidates is None else terms(args.candidates, "--candidates"),
+        screen=not args.no_screen,
         n_threads=args.threads,
     )
     config = dc.replace(
