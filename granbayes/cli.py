@@ -52,24 +52,29 @@ import difflib
 import io
 import json
 import math
-import os
-import re
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
-import numpy as np
 import pandas as pd
 
 from . import __version__
 from ._files import atomic_path, staged_folder
+from .demo import (
+    DEMO_PARAMS,
+    DEMO_PHI,
+    HARD_GROUND_FREQS_HZ,
+    HARD_GROUND_PARAMS,
+    law_text,
+    run_demo,
+)
 from .errors import InputError
 from .experiment import COMMAND_NAMES, Experiment, load_batch_table, load_experiment
 from .forces import PARAMETER_NAMES, PARAMETERS, TERMS, parameter_term
 from .simulator import Status, simulate, simulate_table, simulate_trajectory
-from .synthetic import REFERENCE_DATA as _REFERENCE_DATA
+from .synthetic import REFERENCE_DATA
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -104,21 +109,6 @@ EXIT_INPUT = 2
 EXIT_FAILED_JUMP = 3
 #: Exit code when a campaign task failed (recorded in ``OUT/tasks.csv``); outputs written.
 EXIT_FAILED_TASK = 5
-
-#: Volume fraction of the demo bed: the critical packing of the founding thesis [-].
-DEMO_PHI = 0.612
-
-#: Force law of the demo: a representative depth + drag law for poppy seeds, *not* a
-#: measurement. ``k`` [N/m] depth stiffness, ``c_d`` [kg/m] quadratic drag, ``r_unload``
-#: [-] the default plastic bed of physics-model.md section 3.
-DEMO_PARAMS: dict[str, float] = {"k": 3000.0, "c_d": 50.0, "r_unload": 20.0}
-
-#: A rigid floor for the hard-ground sweep (physics-model.md section 6): very stiff
-#: ``k`` [N/m] and a bed that keeps its crater (``r_unload`` [-]).
-HARD_GROUND_PARAMS: dict[str, float] = {"k": 1e6, "r_unload": 50.0}
-
-#: Actuator frequencies of the hard-ground sweep [Hz].
-HARD_GROUND_FREQS_HZ: np.ndarray = np.arange(4.0, 30.0 + 0.5, 1.0)
 
 
 class UsageError(ValueError):
@@ -266,16 +256,6 @@ def _load_experiment(path: str | None) -> Experiment:
     return Experiment() if path is None else load_experiment(path)
 
 
-def _law_text(params: dict[str, float]) -> str:
-    units = {p.name: p.unit for p in PARAMETERS}
-    parts = []
-    for name, value in params.items():
-        unit = units[name]
-        shown = re.sub(r"e\+?(-?)0*(\d)", r"e\1\2", f"{value:g}")  # 1e+06 -> 1e6
-        parts.append(f"{name} = {shown}" + ("" if unit == "-" else f" {unit}"))
-    return ", ".join(parts)
-
-
 # ----------------------------------------------------------------------------------------
 # granbayes simulate
 # ----------------------------------------------------------------------------------------
@@ -410,7 +390,7 @@ def _simulate_one(args: argparse.Namespace) -> int:
             shown = f"height {height:.1f} mm" if math.isfinite(height) else "no height"
             title = (
                 f"{command.replace('_', ' ')} jump at φ = {phi:g}: {shown} ({status.label})\n"
-                f"{_law_text(params)}"
+                f"{law_text(params)}"
             )
             _write_figure(plot_trajectory(traj, title=title), args.plot)
 
@@ -504,129 +484,13 @@ def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="print nothing (files only)")
 
 
-def _demo_jumps(out: Path, experiment: Experiment) -> None:
-    """The five commands at ``DEMO_PHI`` with ``DEMO_PARAMS``: table, CSV and figure."""
-    from .plots import plot_jumps
-
-    trajs = {
-        c: simulate_trajectory(c, DEMO_PHI, DEMO_PARAMS, experiment=experiment)
-        for c in COMMAND_NAMES
-    }
-    table = pd.DataFrame({"command": list(COMMAND_NAMES), "phi": DEMO_PHI} | DEMO_PARAMS)
-    heights = simulate_table(table, experiment)
-    print(f"Five jumps of the default robot at phi = {DEMO_PHI:g}, {_law_text(DEMO_PARAMS)}:")
-    print(f"  {'command':<25} {'height [mm]':>11}  status")
-    for row in heights.itertuples():
-        print(f"  {row.command:<25} {row.height_mm:>11.2f}  {row.status}")
-    _write_csv(heights, out / "heights.csv")
-    robot = experiment.robot
-    title = (
-        f"The five jump commands on a granular bed (φ = {DEMO_PHI:g}; representative law "
-        f"{_law_text(DEMO_PARAMS)})\nrobot: M = {robot.m_upper:g} kg, "
-        f"m_foot = {robot.m_foot:g} kg, k_spring = {robot.k_spring:g} N/m; actuator "
-        f"A = {experiment.command.amplitude_mm:g} mm, f = {experiment.command.freq_hz:g} Hz"
-    )
-    _write_figure(plot_jumps(trajs, title), out / "jumps.png")
-
-
-def _demo_hard_ground(out: Path, experiment: Experiment) -> None:
-    """Single and stutter jump height against frequency on a rigid floor."""
-    from .plots import plot_hard_ground
-
-    freqs = HARD_GROUND_FREQS_HZ
-    table = pd.DataFrame(
-        {
-            "command": np.repeat(["single", "stutter"], freqs.size),
-            "phi": DEMO_PHI,
-            "freq_hz": np.tile(freqs, 2),
-        }
-        | HARD_GROUND_PARAMS
-    )
-    result = simulate_table(table, experiment)
-    single = result["height_mm"].to_numpy()[: freqs.size]
-    stutter = result["height_mm"].to_numpy()[freqs.size :]
-    f0 = experiment.robot.f0_hz
-    print(
-        f"Rigid floor ({_law_text(HARD_GROUND_PARAMS)}), f0 = {f0:.2f} Hz: best single "
-        f"{freqs[np.nanargmax(single)]:g} Hz ({np.nanmax(single):.1f} mm), best stutter "
-        f"{freqs[np.nanargmax(stutter)]:g} Hz ({np.nanmax(stutter):.1f} mm)"
-    )
-    _write_csv(result, out / "hard_ground.csv")
-    title = (
-        "Rigid floor: jump height vs actuator frequency\n"
-        f"(default robot, A = {experiment.command.amplitude_mm:g} mm; "
-        f"{_law_text(HARD_GROUND_PARAMS)})"
-    )
-    _write_figure(
-        plot_hard_ground(freqs, single, stutter, f0, title=title), out / "hard_ground.png"
-    )
-
-
-#: The shipped SYNTHETIC reference data set, installed with the package
-#: (:data:`granbayes.synthetic.REFERENCE_DATA`).
-REFERENCE_DATA = _REFERENCE_DATA
-
-
-def _demo_fit(out: Path, data: Path, seed: int) -> None:
-    """Fit depth + drag per volume fraction to ``data`` and answer the uniqueness question."""
-    from .experiment import load_jumps
-    from .fitting import FitConfig, compare_commands, fit
-    from .report import load_truth, write_fit_report
-
-    experiment = load_experiment(data)
-    table = load_jumps(data, experiment)
-    truth_file = data / "truth.toml"
-    truth = load_truth(truth_file) if truth_file.exists() else None
-    config = FitConfig(terms=("depth", "drag"))
-    print(f"Fitting {config.terms} per volume fraction to {len(table)} jumps in {data} ...")
-    out.mkdir(parents=True, exist_ok=True)
-    source = os.path.relpath(data) if Path(data).is_absolute() else str(data)
-    result = fit(experiment, table, config, seed=seed, data_source=source)
-    print("One force law for all five commands? (PSIS-LOO per volume fraction) ...")
-    uniqueness = compare_commands(experiment, table, result, seed=seed)
-    write_fit_report(result.datatree, out, truth=truth, uniqueness=uniqueness)
-    for w in result.warnings:
-        print(f"granbayes: warning: {w}", file=sys.stderr)
-    print((out / "summary.md").read_text())
-
-
-def run_demo(out: Path, data: Path | None = REFERENCE_DATA, seed: int = 0) -> None:
-    """Run the demo: simulate, fit, print summaries and write figures and tables to ``out``.
-
-    Writes ``heights.csv`` (the five jumps; a valid ``simulate --batch`` input),
-    ``jumps.png`` (:func:`granbayes.plots.plot_jumps`), ``hard_ground.csv`` and
-    ``hard_ground.png`` (:func:`granbayes.plots.plot_hard_ground`), and, if ``data`` is
-    given, the Bayesian fit of depth + drag to it in ``out/fit`` (posterior, summary,
-    corner plots, predictive check, the uniqueness table).
-
-    Parameters
-    ----------
-    out : Path
-        Output folder (created if needed).
-    data : Path, optional
-        Experiment folder to fit (default: the shipped synthetic reference data set).
-    seed : int
-        Seed of the fit.
-    """
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out}: exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    experiment = Experiment()
-    _demo_jumps(out, experiment)
-    _demo_hard_ground(out, experiment)
-    written = ["heights.csv", "jumps.png", "hard_ground.csv", "hard_ground.png"]
-    if data is not None:
-        _demo_fit(out / "fit", Path(data), seed)
-        written.append("fit/")
-    print(f"Wrote {', '.join(written)} to {out}")
-
-
 def _run_demo(args: argparse.Namespace) -> int:
     data = None if args.no_fit else args.data
     if data is not None and not Path(data).is_dir():
         raise UsageError(f"--data {data}: no such experiment folder")
     quiet = contextlib.redirect_stdout(io.StringIO()) if args.quiet else contextlib.nullcontext()
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"--out {args.out}: exists and is not a folder")
     with quiet:
         run_demo(args.out, data, args.seed)
     return EXIT_OK
