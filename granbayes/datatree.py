@@ -191,6 +191,14 @@ def summary_table(
 ) -> pd.DataFrame:
     """Posterior summary with equal-tailed intervals, R-hat and ESS.
 
+    ``r_hat`` is the rank-normalised split R-hat **across the independent ensembles** of
+    the parameter's run, the statistic of the stopping rule, read from the fit's ``runs``
+    record. ArviZ's own R-hat would take every walker as an independent chain; the walkers
+    of one ensemble move together (each proposal uses the others), which inflates it
+    without saying anything about convergence. Where a row has no recorded value (the
+    ``quadratic`` parametrisation, or a DataTree made elsewhere) ArviZ's value is kept.
+    ESS and MCSE are ArviZ's, over the walkers as chains (as the stopping rule's ESS).
+
     Parameters
     ----------
     dt : xarray.DataTree
@@ -204,7 +212,25 @@ def summary_table(
     -------
     pandas.DataFrame
     """
-    return az.summary(dt, var_names=var_names, ci_prob=ci_prob, ci_kind="eti")
+    table = az.summary(dt, var_names=var_names, ci_prob=ci_prob, ci_kind="eti")
+    for row, value in _ensemble_rhat(dt).items():
+        if row in table.index:
+            table.loc[row, "r_hat"] = value
+    return table
+
+
+def _ensemble_rhat(dt: xr.DataTree) -> dict[str, float]:
+    """R-hat across ensembles per summary row (``"k[0.592]"``) from the ``runs`` record."""
+    out: dict[str, float] = {}
+    for run in json.loads(dt.attrs.get("runs", "[]")):
+        label, rhat = run["label"], run.get("rhat") or []
+        if not label.startswith("phi=") or len(rhat) != len(run["coordinates"]):
+            continue
+        phi = label.removeprefix("phi=")
+        for name, value in zip(run["coordinates"], rhat, strict=True):
+            base = name.split("[")[0]
+            out[f"{base}[{phi}]"] = float(value)
+    return out
 
 
 def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
