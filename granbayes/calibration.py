@@ -400,6 +400,16 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
     the cause that is not the truth: for ``null`` any named term, for an out-of-library
     effect ``extended`` although misfit was left, which cannot happen by construction and
     is a check); ``all_converged``; the median wall time per case.
+
+    Parameters
+    ----------
+    results : pandas.DataFrame
+        Rows of :func:`diagnose_case`.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per case kind.
     """
     rows = []
     for kind, g in results.groupby("kind", sort=False):

@@ -218,7 +218,18 @@ def local_cluster_size(n_workers: int | None = None, cores: int | None = None) -
 
 
 def campaign_fingerprint(description: Mapping[str, Any]) -> str:
-    """SHA-256 of a campaign's description (canonical JSON, sorted keys)."""
+    """SHA-256 of a campaign's description (canonical JSON, sorted keys).
+
+    Parameters
+    ----------
+    description : mapping
+        What identifies the campaign (JSON-able values).
+
+    Returns
+    -------
+    str
+        Hexadecimal digest.
+    """
     text = json.dumps(description, sort_keys=True, default=str, allow_nan=True)
     return hashlib.sha256(text.encode()).hexdigest()
 

@@ -97,11 +97,31 @@ class CommandProgram:
         return float(self.boundaries[self.pushoff_index])
 
     def alpha(self, t: np.ndarray) -> np.ndarray:
-        """Actuator position ``alpha(t)`` [m] (held before 0 and after the end)."""
+        """Actuator position ``alpha(t)`` [m] (held before 0 and after the end).
+
+        Parameters
+        ----------
+        t : ndarray
+            Times [s].
+
+        Returns
+        -------
+        ndarray
+        """
         return self._evaluate(np.asarray(t, dtype=float), derivative=0)
 
     def alpha_ddot(self, t: np.ndarray) -> np.ndarray:
-        """Actuator acceleration ``alpha''(t)`` [m/s^2] (zero outside the segments)."""
+        """Actuator acceleration ``alpha''(t)`` [m/s^2] (zero outside the segments).
+
+        Parameters
+        ----------
+        t : ndarray
+            Times [s].
+
+        Returns
+        -------
+        ndarray
+        """
         return self._evaluate(np.asarray(t, dtype=float), derivative=2)
 
     def _evaluate(self, t: np.ndarray, derivative: int) -> np.ndarray:

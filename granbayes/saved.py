@@ -221,7 +221,22 @@ class SavedFit:
         return dict(self._models)
 
     def model(self, label: str) -> JumpModel:
-        """The rebuilt log-posterior of run ``label`` (see :meth:`models`)."""
+        """The rebuilt log-posterior of run ``label`` (see :meth:`models`).
+
+        Parameters
+        ----------
+        label : str
+            Run label (``"phi=0.602"`` or ``"all"``).
+
+        Returns
+        -------
+        JumpModel
+
+        Raises
+        ------
+        KeyError
+            If the fit has no such run.
+        """
         models = self.models()
         if label not in models:
             raise KeyError(f"no run {label!r}; the fit's runs are {', '.join(models)}")
@@ -229,6 +244,11 @@ class SavedFit:
 
     def draws(self, label: str) -> np.ndarray:
         """The posterior draws of run ``label`` in its model's sampling coordinates.
+
+        Parameters
+        ----------
+        label : str
+            Run label (``"phi=0.602"`` or ``"all"``).
 
         Returns
         -------
