@@ -36,6 +36,7 @@ def make_jumps(
     seed: int = 0,
     label: str = "granbayes.synthetic.make_jumps",
     options: SolverOptions | None = None,
+    decimals: int | None = 3,
 ) -> pd.DataFrame:
     """Simulate the true law for every cell and add seeded Gaussian scatter.
 
@@ -58,6 +59,9 @@ def make_jumps(
         Generator named in the ``source`` column.
     options : SolverOptions, optional
         Integrator settings (default: converged).
+    decimals : int or None
+        ``height_mm`` is rounded to this many decimals of a millimetre (3: micrometres, like
+        a lab table); ``None`` keeps the unrounded sum of the true height and the scatter.
 
     Returns
     -------
@@ -77,13 +81,14 @@ def make_jumps(
                 true_h = float(res.height_mm[0])
                 noise = rng.normal(0.0, sigma(phi), size=trials)
                 for trial in range(trials):
+                    height = true_h + noise[trial]
                     rows.append(
                         {
                             "phi": phi,
                             "command": command,
                             "freq_hz": freq,
                             "trial": trial + 1,
-                            "height_mm": round(true_h + noise[trial], 3),
+                            "height_mm": height if decimals is None else round(height, decimals),
                             "true_height_mm": round(true_h, 4),
                             "source": f"synthetic: {label} seed={seed}",
                         }

@@ -1,8 +1,17 @@
-"""Test kit: an independent ``scipy.integrate.solve_ivp`` oracle of the jumping-robot model.
+"""Test kit: an independent ``scipy.integrate.solve_ivp`` oracle of the jumping-robot model,
+and the one seeded factory of SYNTHETIC jump tables that the tests use.
 
 This module is public so that tests, benchmarks and other implementations of the model can
 check themselves against one reference (like ``arviz_base.testing``). It is not imported by
-``granbayes`` itself.
+``granbayes`` itself. It holds:
+
+* :func:`simulate_height_scipy`, the oracle (described below);
+* :func:`synthetic_jumps`, SYNTHETIC jump tables for tests: a known force law simulated
+  for every cell of a small design plus seeded Gaussian scatter. It is a thin layer over
+  the public generator :func:`granbayes.synthetic.make_jumps` (same draws, same rows), which
+  adds what tests need: a constant law given as a mapping, the command-setting columns of
+  a batch table, and no ``true_height_mm`` column unless asked for. Write a table as an
+  experiment folder with :func:`granbayes.synthetic.write_experiment`.
 
 :func:`simulate_height_scipy` follows ``docs/physics-model.md`` directly, with a Python
 right-hand side and solve_ivp's own event machinery, and it is written for clarity rather
@@ -43,9 +52,11 @@ How the non-smooth model is integrated
 
 Examples
 --------
->>> from granbayes.testing import simulate_height_scipy
+>>> from granbayes.testing import simulate_height_scipy, synthetic_jumps
 >>> round(simulate_height_scipy("single", 0.612, {"k": 3000.0, "r_unload": 1.0}), 1)
 67.7
+>>> synthetic_jumps({"k": 3000.0}, 2.0, seed=1, commands=("single",)).shape
+(3, 6)
 """
 
 from __future__ import annotations
@@ -55,14 +66,17 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 from scipy.integrate import solve_ivp
 from scipy.optimize import OptimizeResult, brentq
 
 from .commands import CommandProgram, build_command
-from .experiment import Experiment
+from .experiment import COMMAND_NAMES, Experiment
 from .forces import PARAMETERS
+from .simulator import SolverOptions
+from .synthetic import make_jumps
 
-__all__ = ["COMPACTION_LENGTH", "PARAMETER_DEFAULTS", "simulate_height_scipy"]
+__all__ = ["COMPACTION_LENGTH", "PARAMETER_DEFAULTS", "simulate_height_scipy", "synthetic_jumps"]
 
 #: Gravitational acceleration [m/s^2].
 G = 9.81
@@ -537,3 +551,99 @@ def simulate_height_scipy(
             # kind == "peak" without a crossing: a local maximum short of the regime's end;
             # the run simply restarts from there in the same regime
     return float(1e3 * height)
+
+
+# ----------------------------------------------------------------------------------------
+# SYNTHETIC jump tables
+
+
+def synthetic_jumps(
+    truth: Mapping[str, float] | Callable[[float], Mapping[str, float]],
+    sigma_mm: float | Callable[[float], float],
+    *,
+    seed: int,
+    experiment: Experiment | None = None,
+    phis: Sequence[float] = (0.612,),
+    freqs_hz: Sequence[float] = (10.0,),
+    commands: Sequence[str] = COMMAND_NAMES,
+    trials: int = 3,
+    label: str = "granbayes.testing.synthetic_jumps",
+    options: SolverOptions | None = None,
+    decimals: int | None = 3,
+    settings_columns: bool = False,
+    true_heights: bool = False,
+) -> pd.DataFrame:
+    """A SYNTHETIC jumps table: a known law simulated for every cell, plus seeded scatter.
+
+    The rows and the random draws are those of :func:`granbayes.synthetic.make_jumps` with
+    the same arguments (loop order phi, frequency, command, trial; one
+    ``numpy.random.Generator`` seeded with ``seed``), so a table is fixed by its arguments.
+
+    Parameters
+    ----------
+    truth : mapping or callable
+        The true force-law parameters [SI]: one mapping for every volume fraction, or
+        ``truth(phi)`` -> mapping.
+    sigma_mm : float or callable
+        Trial-to-trial scatter [mm], constant or ``sigma_mm(phi)``.
+    seed : int
+        Seed of the scatter.
+    experiment : Experiment, optional
+        Robot and command settings (default ``Experiment()``); ``freq_hz`` is set per row.
+    phis : sequence of float
+        Volume fractions [-].
+    freqs_hz : sequence of float
+        Actuator frequencies [Hz].
+    commands : sequence of str
+        Jump commands.
+    trials : int
+        Jumps per cell.
+    label : str
+        Named in the ``source`` column (``"synthetic: <label> seed=<seed>"``).
+    options : SolverOptions, optional
+        Integrator settings of the true heights (default: ``SolverOptions.converged()``).
+    decimals : int or None
+        ``height_mm`` rounded to this many decimals [mm]; ``None``: not rounded.
+    settings_columns : bool
+        Add the command settings of ``experiment`` (``amplitude_mm``, ``delay_ms``,
+        ``settle_periods``) as columns, as a batch table has them.
+    true_heights : bool
+        Keep the noise-free ``true_height_mm`` column.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``phi, command, freq_hz, trial, height_mm, source`` (then ``true_height_mm`` and
+        the settings columns, if asked for), one row per jump.
+
+    Examples
+    --------
+    >>> from granbayes.testing import synthetic_jumps
+    >>> t = synthetic_jumps(lambda phi: {"k": 4000.0 * phi / 0.612}, 3.0, seed=5,
+    ...                     phis=(0.602, 0.622), commands=("single",), trials=2)
+    >>> t[["phi", "command", "trial"]].values.tolist()
+    [[0.602, 'single', 1], [0.602, 'single', 2], [0.622, 'single', 1], [0.622, 'single', 2]]
+    """
+    exp = experiment if experiment is not None else Experiment()
+    law = truth if callable(truth) else (lambda _phi: truth)
+    table = make_jumps(
+        law,
+        sigma_mm,
+        experiment=exp,
+        phis=phis,
+        freqs_hz=freqs_hz,
+        commands=commands,
+        trials=trials,
+        seed=seed,
+        label=label,
+        options=options,
+        decimals=decimals,
+    )
+    if not true_heights:
+        table = table.drop(columns="true_height_mm")
+    if settings_columns:
+        c = exp.command
+        table = table.assign(
+            amplitude_mm=c.amplitude_mm, delay_ms=c.delay_ms, settle_periods=c.settle_periods
+        )
+    return table

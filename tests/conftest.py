@@ -8,12 +8,31 @@ property for a deeper local search.
 
 Plain NumPy random draws in tests come from the ``rng`` fixture: a generator seeded with
 :data:`RNG_SEED`, fresh for every test, so each test draws the same numbers whatever else
-runs (in any order, on any pytest-xdist worker).
+runs (in any order, on any pytest-xdist worker). SYNTHETIC jump tables come from the test
+kit, :func:`granbayes.testing.synthetic_jumps` (seeded by its ``seed`` argument).
+
+The shared contracts (``shared/`` beside the repository)
+--------------------------------------------------------
+No test needs ``shared/`` to check the package: the converged reference heights are read
+from the repository's own copy ``tests/data/reference-heights.csv``, and the contract
+texts are the first parts of ``docs/data-format.md`` and ``docs/physics-model.md``. Only
+the checks that these copies equal the contracts read ``shared/``, through the
+``shared_file`` fixture, which decides:
+
+* ``shared/`` is beside the repository (as in CI): the file must be there; a missing one
+  fails the test, naming the path.
+* The environment variable ``GRANBAYES_SHARED`` names the folder: the same, in that
+  folder (a wrong path fails, it does not skip).
+* Neither (a clone on its own): the copy checks are skipped, with the reason naming the
+  folder looked for (``-ra``, the default, lists it in the summary). The tests of the
+  package itself still run, on the repository's copies.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -34,6 +53,33 @@ RNG_SEED = 20261123
 def rng() -> np.random.Generator:
     """A NumPy random generator seeded with :data:`RNG_SEED`, fresh for every test."""
     return np.random.default_rng(RNG_SEED)
+
+
+#: Where the shared contracts sit when ``GRANBAYES_SHARED`` is not set: beside the repository.
+SHARED_BESIDE = Path(__file__).resolve().parents[2] / "shared"
+
+
+@pytest.fixture(scope="session")
+def shared_file() -> Callable[[str], Path]:
+    """``shared_file(name)``: the path of ``name`` in the shared contracts (policy: module
+    docstring). Fails if the folder is there (or named by ``GRANBAYES_SHARED``) but the
+    file is not; skips, saying why, only where no shared folder is beside the repository."""
+    named = os.environ.get("GRANBAYES_SHARED")
+    folder = Path(named) if named else SHARED_BESIDE
+
+    def find(name: str) -> Path:
+        path = folder / name
+        if path.is_file():
+            return path
+        if named or folder.is_dir():
+            source = f"GRANBAYES_SHARED={named}" if named else "shared/ beside the repository"
+            pytest.fail(f"shared contract {path} is missing ({source})", pytrace=False)
+        pytest.skip(
+            f"no shared contracts at {folder} (a clone on its own; set GRANBAYES_SHARED to "
+            "check against them): the repository's own copies are used"
+        )
+
+    return find
 
 
 def pytest_configure(config):

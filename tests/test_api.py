@@ -2,7 +2,8 @@
 report, the identifiability table, LOO-PIT, ``granbayes priors`` and batch simulation input.
 
 All data here are SYNTHETIC: heights simulated with :func:`granbayes.simulate` from a known
-depth-only law plus seeded Gaussian noise. The fits are short (two ensembles of 8 walkers,
+depth-only law plus seeded Gaussian noise (the test kit,
+:func:`granbayes.testing.synthetic_jumps`). The fits are short (two ensembles of 8 walkers,
 at most 300 steps): they need a posterior, not a converged one.
 """
 
@@ -24,6 +25,8 @@ from granbayes.cli import EXIT_INPUT, EXIT_OK, main
 from granbayes.criticism import IDENTIFIABILITY_LEVELS, identifiability_table
 from granbayes.datatree import loo, loo_pit
 from granbayes.report import write_fit_report
+from granbayes.synthetic import write_experiment
+from granbayes.testing import synthetic_jumps
 
 SHORT = gb.SamplerSettings(
     n_walkers=8, n_ensembles=2, check_every=50, max_steps=300, n_draws=30, min_ess=50
@@ -38,28 +41,18 @@ def true_k(phi: float) -> float:
 
 
 def write_folder(folder: Path, phis=PHIS, trials: int = 2, seed: int = 5) -> Path:
-    """A SYNTHETIC experiment folder: five commands per phi, ``trials`` jumps each."""
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "experiment.toml").write_text(
-        "# SYNTHETIC test data\n[command]\nfreq_hz = 10.0\n\n[bed]\nphi_c = 0.612\n"
+    """A SYNTHETIC experiment folder (the test kit): five commands per phi at 10 Hz,
+    ``trials`` jumps each, the default solver settings, 3 mm of scatter."""
+    jumps = synthetic_jumps(
+        lambda phi: {"k": true_k(phi)},
+        3.0,
+        seed=seed,
+        phis=phis,
+        trials=trials,
+        label="tests/test_api.py",
+        options=gb.SolverOptions(),
     )
-    rng = np.random.default_rng(seed)
-    rows = []
-    for phi in phis:
-        for command in gb.COMMAND_NAMES:
-            h = float(gb.simulate(command, phi, {"k": true_k(phi)}).height_mm[0])
-            rows += [
-                {
-                    "phi": phi,
-                    "command": command,
-                    "trial": t + 1,
-                    "height_mm": round(h + 3.0 * rng.standard_normal(), 3),
-                    "source": "synthetic: tests/test_api.py",
-                }
-                for t in range(trials)
-            ]
-    pd.DataFrame(rows).to_csv(folder / "jumps.csv", index=False)
-    return folder
+    return write_experiment(folder, jumps, gb.Experiment())
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:

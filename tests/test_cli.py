@@ -28,7 +28,8 @@ from granbayes.datatree import read_datatree
 from granbayes.experiment import COMMAND_NAMES, Experiment, load_experiment
 from granbayes.sampler import ProgressInfo
 from granbayes.simulator import simulate
-from granbayes.synthetic import make_jumps, write_experiment
+from granbayes.synthetic import write_experiment
+from granbayes.testing import synthetic_jumps
 
 REFERENCE_HEIGHTS = Path(__file__).resolve().parent / "data" / "reference-heights.csv"
 
@@ -437,14 +438,11 @@ CAPPED_FIT += ["--max-steps", "100", "--threads", "1"]
 @pytest.fixture(scope="module")
 def small_experiment(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """SYNTHETIC experiment folder: depth-only law, phi 0.612, three commands x 3 trials."""
-    jumps = make_jumps(
-        lambda phi: {"k": 4000.0},
+    jumps = synthetic_jumps(
+        {"k": 4000.0},
         3.0,
-        phis=(0.612,),
-        freqs_hz=(10.0,),
-        commands=("single", "preload", "delayed_stutter"),
-        trials=3,
         seed=5,
+        commands=("single", "preload", "delayed_stutter"),
         label="tests/test_cli.py",
     )
     return write_experiment(tmp_path_factory.mktemp("cli") / "exp", jumps, Experiment())

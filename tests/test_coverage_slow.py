@@ -6,9 +6,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from granbayes import COMMAND_NAMES, Experiment, simulate
+from granbayes import Experiment, SolverOptions
 from granbayes.fitting import FitConfig, fit
 from granbayes.sampler import SamplerSettings
+from granbayes.testing import synthetic_jumps
 
 TRUE_K = 4000.0  # N/m, depth-only law
 TRUE_SIGMA_MM = 3.0
@@ -18,24 +19,20 @@ N_REPLICATES = 20
 MIN_COVERAGE = 0.7
 
 
-def synthetic_table(true_heights: dict[str, float], seed: int) -> pd.DataFrame:
-    """One SYNTHETIC replicate: the true heights plus seeded Gaussian noise of 3 mm."""
-    rng = np.random.default_rng(seed)
-    rows = [
-        {
-            "phi": PHI,
-            "command": command,
-            "height_mm": height + TRUE_SIGMA_MM * rng.standard_normal(),
-            "trial": trial + 1,
-            "freq_hz": 10.0,
-            "amplitude_mm": 20.0,
-            "delay_ms": 50.0,
-            "settle_periods": 3.0,
-        }
-        for command, height in true_heights.items()
-        for trial in range(TRIALS)
-    ]
-    return pd.DataFrame(rows)
+def replicate_table(seed: int) -> pd.DataFrame:
+    """One SYNTHETIC replicate (the test kit): the true heights (default solver settings)
+    plus seeded Gaussian noise of 3 mm, not rounded, with the command-setting columns."""
+    return synthetic_jumps(
+        {"k": TRUE_K},
+        TRUE_SIGMA_MM,
+        seed=seed,
+        phis=(PHI,),
+        trials=TRIALS,
+        label="tests/test_coverage_slow.py",
+        options=SolverOptions(),
+        decimals=None,
+        settings_columns=True,
+    )
 
 
 @pytest.mark.slow
@@ -54,10 +51,6 @@ def test_ninety_percent_intervals_cover_k() -> None:
     and convergence are reported in the failure message.
     """
     experiment = Experiment()
-    true_heights = {
-        c: float(simulate(c, PHI, {"k": TRUE_K}, experiment=experiment).height_mm[0])
-        for c in COMMAND_NAMES
-    }
     config = FitConfig(
         terms=("depth",),
         sampler=SamplerSettings(
@@ -68,7 +61,7 @@ def test_ninety_percent_intervals_cover_k() -> None:
     )
     hits_k, hits_sigma, converged = [], [], []
     for rep in range(N_REPLICATES):
-        table = synthetic_table(true_heights, seed=1000 + rep)
+        table = replicate_table(seed=1000 + rep)
         result = fit(experiment, table, config, seed=rep)
         post = result.datatree.posterior
         k_lo, k_hi = np.quantile(post["k"].values.ravel(), [0.05, 0.95])

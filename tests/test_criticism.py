@@ -2,9 +2,9 @@
 rule and the verdicts, diagnosis.json and its report, the CLI.
 
 The hidden-effect tests (slow) are in ``tests/test_hidden_effects.py``. Data here are
-SYNTHETIC (granbayes.synthetic.make_jumps, fixed seeds) or hand-made arrays; the designs
-are tiny (one volume fraction, three commands, four trials) and the samplers short, so
-that a whole ``diagnose`` takes seconds.
+SYNTHETIC (the test kit :func:`granbayes.testing.synthetic_jumps`, fixed seeds) or hand-made
+arrays; the designs are tiny (one volume fraction, three commands, four trials) and the
+samplers short, so that a whole ``diagnose`` takes seconds.
 """
 
 from __future__ import annotations
@@ -33,7 +33,8 @@ from granbayes.criticism import (
 )
 from granbayes.report import write_diagnosis_report
 from granbayes.sampler import SamplerSettings
-from granbayes.synthetic import make_jumps, write_experiment
+from granbayes.synthetic import write_experiment
+from granbayes.testing import synthetic_jumps
 
 #: Short sampler settings for the loop: two ensembles of 8 walkers, a stopping rule that
 #: such short chains can meet (R-hat across the two ensembles <= 1.05, ESS >= 50).
@@ -57,18 +58,15 @@ def _quiet(*args, **kwargs) -> None:
 
 def _table(effect: dict[str, float], seed: int = 3) -> pd.DataFrame:
     """SYNTHETIC jumps: k(phi) + ``effect`` at phi = 0.602, three commands x 10 Hz x 4 trials."""
-    jumps = make_jumps(
+    return synthetic_jumps(
         lambda phi: {"k": 4000.0 + 1.5e5 * (phi - 0.612), **effect},
         2.0,
+        seed=seed,
         phis=(0.602,),
-        freqs_hz=(10.0,),
         commands=("single", "preload", "delayed_stutter"),
         trials=TRIALS,
-        seed=seed,
         label="tests/test_criticism.py",
-    )
-    return jumps.drop(columns="true_height_mm").assign(
-        amplitude_mm=20.0, delay_ms=50.0, settle_periods=3.0
+        settings_columns=True,
     )
 
 
@@ -147,13 +145,14 @@ def test_lack_of_fit_z_uses_the_measured_scatter(drag_case) -> None:
     assert abs(row["z"]) <= abs(row["mean_residual_mm"]) / se_min + 1e-9
 
 
-def _hand_made_fit() -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
+def _hand_made_fit(rng: np.random.Generator) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
     """Observed jumps and posterior-predictive arrays of a made-up fit (no sampling).
 
     Two delayed_stutter cells at phi = 0.612 differ only in their delay (50 and 80 ms);
     the "law" predicts 100 mm for both, so the 80 ms cell (observed mean 92 mm) is badly
-    over-predicted and the 50 ms one (102 mm) slightly under-predicted. Returns the table
-    and ``sim``, ``rep`` of shape (chain 2, draw 50, jump).
+    over-predicted and the 50 ms one (102 mm) slightly under-predicted. ``rng`` draws the
+    posterior spread. Returns the table and ``sim``, ``rep`` of shape (chain 2, draw 50,
+    jump).
     """
     rows = [
         ("delayed_stutter", 0.612, 50.0, [100.0, 102.0, 104.0], 100.0),
@@ -177,7 +176,6 @@ def _hand_made_fit() -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
             for y in ys
         ]
     )
-    rng = np.random.default_rng(7)
     model = np.concatenate([[m] * len(ys) for *_, ys, m in rows])
     cell = np.concatenate([[i] * len(ys) for i, (*_, ys, _m) in enumerate(rows)])
     draw_shift = 0.5 * rng.standard_normal((2, 50, len(rows)))  # force-law uncertainty
@@ -186,7 +184,7 @@ def _hand_made_fit() -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
     return table, sim, rep
 
 
-def test_residual_table_keys_cells_by_every_setting() -> None:
+def test_residual_table_keys_cells_by_every_setting(rng: np.random.Generator) -> None:
     """Cells differ by any setting (here: the delay), and z pools the measured scatter per phi.
 
     On a hand-made DataTree: the two delayed_stutter cells at phi = 0.612 that differ only
@@ -196,7 +194,7 @@ def test_residual_table_keys_cells_by_every_setting() -> None:
     phi (0.612: (8 + 14 + 2) / 6 = 4 mm^2 on 6 dof; 0.622: (8 + 2) / 2 = 5 mm^2 on 2 dof),
     and ``p_value`` its two-sided Student-t tail.
     """
-    table, sim, rep = _hand_made_fit()
+    table, sim, rep = _hand_made_fit(rng)
     n = len(table)
     dt = gdt.build_datatree(
         {"k": np.full((2, 50, 2), 4000.0)},

@@ -1,9 +1,11 @@
 """The documents in docs/ stay in step with the shared contracts and with the code.
 
 ``docs/data-format.md`` and ``docs/physics-model.md`` begin with the contracts of
-``shared/`` (beside the repository) reproduced unchanged; those checks are skipped where
-``shared/`` is absent. The generated blocks (the command-line reference, the table of
-default priors) must be what ``python docs/generate.py`` writes today.
+``shared/`` (beside the repository) reproduced unchanged; those checks read ``shared/``
+through the ``shared_file`` fixture (``tests/conftest.py``: they fail if a contract file is
+missing there, and skip, saying so, only in a clone without ``shared/``). The generated
+blocks (the command-line reference, the table of default priors) must be what
+``python docs/generate.py`` writes today.
 """
 
 from __future__ import annotations
@@ -14,15 +16,12 @@ import importlib.util
 import re
 from pathlib import Path
 
-import pytest
-
 from granbayes import criticism
 from granbayes.cli import SUBCOMMANDS
 from granbayes.priors import load_priors
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
-SHARED = ROOT.parent / "shared"
 ADDITIONS = "\n---\n\n# Additions made in granbayes\n"
 
 
@@ -33,13 +32,6 @@ def _generator():
     return module
 
 
-def _shared(name: str) -> str:
-    path = SHARED / name
-    if not path.is_file():
-        pytest.skip(f"shared/{name} is not beside the repository")
-    return path.read_text(encoding="utf-8")
-
-
 def test_generated_blocks_are_up_to_date() -> None:
     """The CLI reference and the priors table are what the code gives today."""
     for path, text in _generator().render().items():
@@ -48,16 +40,16 @@ def test_generated_blocks_are_up_to_date() -> None:
         )
 
 
-def test_data_format_begins_with_the_shared_contract() -> None:
+def test_data_format_begins_with_the_shared_contract(shared_file) -> None:
     """docs/data-format.md = shared/data-format.md unchanged, then the additions."""
-    shared = _shared("data-format.md")
+    shared = shared_file("data-format.md").read_text(encoding="utf-8")
     head, sep, _ = (DOCS / "data-format.md").read_text(encoding="utf-8").partition(ADDITIONS)
     assert sep and head.rstrip("\n") == shared.rstrip("\n")
 
 
-def test_physics_model_sections_1_to_7_are_the_shared_contract() -> None:
+def test_physics_model_sections_1_to_7_are_the_shared_contract(shared_file) -> None:
     """docs/physics-model.md sections 1-7 = shared/physics-model.md unchanged."""
-    shared = _shared("physics-model.md")
+    shared = shared_file("physics-model.md").read_text(encoding="utf-8")
     text = (DOCS / "physics-model.md").read_text(encoding="utf-8")
     head, sep, _ = text.partition(ADDITIONS)
     assert sep, "docs/physics-model.md has no '# Additions made in granbayes' part"

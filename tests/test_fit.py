@@ -1,7 +1,8 @@
 """Tests of the Bayesian fit (``granbayes.fit``), its DataTree and the ``granbayes fit`` CLI.
 
 All data here are SYNTHETIC: heights simulated with :func:`granbayes.simulate` from a
-known force law plus seeded Gaussian noise (sigma = 3 mm), never measurements. Fits are
+known force law plus seeded Gaussian noise (sigma = 3 mm), never measurements (the test
+kit, :func:`granbayes.testing.synthetic_jumps`). Fits are
 kept small (two ensembles of 8 walkers, one or two volume fractions, 15-18 jumps) and the
 simulator runs on one thread (faster than the default for batches this small); the
 expensive fits are module-scoped fixtures shared by several tests.
@@ -27,7 +28,14 @@ import granbayes.datatree as gdt
 import granbayes.fitting as gfit
 import granbayes.report as greport
 import granbayes.sampler as gsampler
-from granbayes import COMMAND_NAMES, Experiment, load_experiment, load_jumps, simulate
+from granbayes import (
+    COMMAND_NAMES,
+    Experiment,
+    SolverOptions,
+    load_experiment,
+    load_jumps,
+    simulate,
+)
 from granbayes.cli import EXIT_INPUT, EXIT_OK, main
 from granbayes.criticism import DiagnoseConfig
 from granbayes.datatree import read_datatree, write_datatree
@@ -39,6 +47,8 @@ from granbayes.sampler import (
     SamplerSettings,
     load_checkpoint,
 )
+from granbayes.synthetic import write_experiment
+from granbayes.testing import synthetic_jumps
 
 #: The synthetic truth: a depth-only law [N/m] and the trial-to-trial scatter [mm].
 TRUE_K = 4000.0
@@ -99,38 +109,23 @@ def write_synthetic_experiment(
 ) -> Path:
     """Write a SYNTHETIC experiment folder (experiment.toml + jumps.csv) and return it.
 
-    Heights: the depth-only truth ``k = TRUE_K`` simulated for the given commands at every
-    ``phi`` and frequency, plus seeded Gaussian noise of ``TRUE_SIGMA_MM``, rounded to
-    micrometres like a lab table.
+    Heights (the test kit, :func:`granbayes.testing.synthetic_jumps`): the depth-only truth
+    ``k = TRUE_K`` simulated with the default solver settings for the given commands at
+    every ``phi`` and frequency, plus seeded Gaussian noise of ``TRUE_SIGMA_MM``, rounded
+    to micrometres like a lab table.
     """
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "experiment.toml").write_text(
-        "# SYNTHETIC test data (granbayes.simulate + seeded Gaussian noise); not measured.\n"
-        f"[command]\namplitude_mm = 20.0\nfreq_hz = 10.0\n\n[bed]\nphi_c = {PHI_C}\n",
-        encoding="utf-8",
+    jumps = synthetic_jumps(
+        {"k": TRUE_K},
+        TRUE_SIGMA_MM,
+        seed=seed,
+        phis=phis,
+        freqs_hz=freqs_hz,
+        commands=commands,
+        trials=trials,
+        label="tests/test_fit.py",
+        options=SolverOptions(),
     )
-    experiment = load_experiment(folder)
-    rng = np.random.default_rng(seed)
-    rows = []
-    for phi in phis:
-        for freq in freqs_hz:
-            exp = experiment.replace(freq_hz=freq)
-            for command in commands:
-                true_h = float(simulate(command, phi, {"k": TRUE_K}, experiment=exp).height_mm[0])
-                for trial in range(trials):
-                    noisy = true_h + TRUE_SIGMA_MM * rng.standard_normal()
-                    rows.append(
-                        {
-                            "phi": phi,
-                            "command": command,
-                            "freq_hz": freq,
-                            "trial": trial + 1,
-                            "height_mm": round(noisy, 3),
-                            "source": "synthetic",
-                        }
-                    )
-    pd.DataFrame(rows).to_csv(folder / "jumps.csv", index=False)
-    return folder
+    return write_experiment(folder, jumps, Experiment(phi_c=PHI_C))
 
 
 def load_folder(folder: Path) -> tuple[Experiment, pd.DataFrame]:

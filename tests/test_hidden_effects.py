@@ -3,8 +3,8 @@
 For every term of the library: data from ``k(phi)`` + that effect + Gaussian noise
 (sigma = 2 mm) for a robot other than the default (lighter motor, softer spring, smaller
 foot, 18 mm amplitude), 2 volume fractions x 5 commands x 2 frequencies (7 and 12 Hz) x 3
-trials, made by :func:`granbayes.synthetic.make_jumps` with a fixed seed. ``diagnose``
-starts from the depth-only law and must
+trials, made by the test kit (:func:`granbayes.testing.synthetic_jumps`) with a fixed
+seed. ``diagnose`` starts from the depth-only law and must
 
 - name exactly the hidden term (verdict ``extended``, ``added == [term]``),
 - recover its parameter: the 90% interval covers the truth at >= 1 of the 2 volume
@@ -42,7 +42,7 @@ from granbayes import datatree as gdt
 from granbayes.calibration import OUT_OF_LIBRARY, make_case
 from granbayes.criticism import DiagnoseConfig, diagnose
 from granbayes.forces import terms_of
-from granbayes.synthetic import make_jumps
+from granbayes.testing import synthetic_jumps
 
 pytestmark = pytest.mark.slow
 
@@ -69,18 +69,15 @@ def _truth(term: str | None):
 
 @functools.cache
 def _diagnosis(term: str | None, screen: bool = True):
-    jumps = make_jumps(
+    table = synthetic_jumps(
         _truth(term),
         2.0,
+        seed=11,
         experiment=EXPERIMENT,
         phis=(0.597, 0.627),
         freqs_hz=(7.0, 12.0),
-        trials=3,
-        seed=11,
         label=f"tests/test_hidden_effects.py {term}",
-    )
-    table = jumps.drop(columns="true_height_mm").assign(
-        amplitude_mm=18.0, delay_ms=50.0, settle_periods=3.0
+        settings_columns=True,
     )
     config = dataclasses.replace(CONFIG, screen=screen)
     return diagnose(EXPERIMENT, table, config, seed=5, log=lambda *a, **k: None)

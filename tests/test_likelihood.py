@@ -116,7 +116,9 @@ def _heights_and_u(model: JumpModel, rng: np.random.Generator, n: int = 4):
 
 
 @pytest.mark.parametrize("noise", ["normal", "student_t"])
-def test_log_likelihood_matches_scipy(obs: Observations, noise: str) -> None:
+def test_log_likelihood_matches_scipy(
+    obs: Observations, noise: str, rng: np.random.Generator
+) -> None:
     """Pointwise log-likelihood equals scipy's logpdf with the per-phi sigma (rtol 1e-12).
 
     Both compute the same closed form in double precision, so only rounding differs.
@@ -124,7 +126,6 @@ def test_log_likelihood_matches_scipy(obs: Observations, noise: str) -> None:
     """
     nu = 3.5
     model = JumpModel(obs, EXPERIMENT, ["depth"], noise=noise, nu=nu)
-    rng = np.random.default_rng(11)
     heights, u = _heights_and_u(model, rng)
     ll = model.log_likelihood(u, heights)
     assert ll.shape == (len(u), obs.n_obs)
@@ -139,11 +140,10 @@ def test_log_likelihood_matches_scipy(obs: Observations, noise: str) -> None:
     np.testing.assert_allclose(ll, expected, rtol=1e-12, atol=0)
 
 
-def test_log_likelihood_global_sigma(obs: Observations) -> None:
+def test_log_likelihood_global_sigma(obs: Observations, rng: np.random.Generator) -> None:
     """With ``sigma_mode="global"`` one scatter applies to every jump (rtol 1e-12)."""
     model = JumpModel(obs, EXPERIMENT, ["depth"], phi_mode="quadratic", sigma_mode="global")
     assert model.coordinate_names[-1] == "sigma_mm"
-    rng = np.random.default_rng(12)
     heights, u = _heights_and_u(model, rng)
     sigma = np.exp(u[:, -1:])
     expected = scipy.stats.norm.logpdf(
@@ -152,13 +152,13 @@ def test_log_likelihood_global_sigma(obs: Observations) -> None:
     np.testing.assert_allclose(model.log_likelihood(u, heights), expected, rtol=1e-12, atol=0)
 
 
-def test_call_is_prior_plus_summed_likelihood(obs: Observations) -> None:
+def test_call_is_prior_plus_summed_likelihood(obs: Observations, rng: np.random.Generator) -> None:
     """``model(u)`` returns log prior + the sum of the pointwise terms of ``predict``.
 
     Same arithmetic on the same simulated heights, so rtol 1e-12.
     """
     model = JumpModel(obs, EXPERIMENT, ["depth", "drag"])
-    u = model.sample_prior(np.random.default_rng(3), 3)
+    u = model.sample_prior(rng, 3)
     lp, ll = model(u)
     heights, ok = model.predict(u)
     assert ok.all()
@@ -172,13 +172,13 @@ def test_call_is_prior_plus_summed_likelihood(obs: Observations) -> None:
 # ----------------------------------------------------------------------------------------
 
 
-def test_outside_prior_gives_minus_inf_row(obs: Observations) -> None:
+def test_outside_prior_gives_minus_inf_row(obs: Observations, rng: np.random.Generator) -> None:
     """Walkers outside the prior bounds (or NaN) get ``-inf`` and a full ``-inf`` row.
 
     The walker inside the prior in the same batch is unaffected (finite everywhere).
     """
     model = JumpModel(obs, EXPERIMENT, ["depth", "drag"])
-    good = model.sample_prior(np.random.default_rng(5), 1)[0]
+    good = model.sample_prior(rng, 1)[0]
     names = model.coordinate_names
     walkers = np.tile(good, (5, 1))
     walkers[1, names.index("k")] = math.log(1e6)  # above k's upper bound 5e4 N/m
@@ -194,10 +194,10 @@ def test_outside_prior_gives_minus_inf_row(obs: Observations) -> None:
     assert np.all(ll[1:] == -np.inf)
 
 
-def test_simulation_failure_gives_minus_inf(obs: Observations) -> None:
+def test_simulation_failure_gives_minus_inf(obs: Observations, rng: np.random.Generator) -> None:
     """A step budget of 20 makes every jump fail: ``-inf`` log-prob and rows, no exception."""
     model = JumpModel(obs, EXPERIMENT, ["depth"], options=SolverOptions(max_steps=20))
-    u = model.sample_prior(np.random.default_rng(6), 3)
+    u = model.sample_prior(rng, 3)
     assert np.all(np.isfinite(model.log_prior(u)))
     _, ok = model.predict(u)
     assert not ok.any()
@@ -251,9 +251,8 @@ def test_log_prior_includes_log_transform() -> None:
     np.testing.assert_allclose(model.priors["c_d"].to_value(np.array([3.0])), [9.0])
 
 
-def test_prior_sampling_stays_inside() -> None:
+def test_prior_sampling_stays_inside(rng: np.random.Generator) -> None:
     """Draws of every default prior lie inside its bounds (in sampling coordinates)."""
-    rng = np.random.default_rng(0)
     for name, prior in default_priors().items():
         u = prior.sample_u(rng, 200)
         lo, hi = prior.bounds_u
@@ -275,7 +274,7 @@ def quadratic_model(obs: Observations) -> JumpModel:
     return JumpModel(obs, EXPERIMENT, ["depth", "drag"], phi_mode="quadratic")
 
 
-def test_quadratic_value_at_phi_c(quadratic_model: JumpModel) -> None:
+def test_quadratic_value_at_phi_c(quadratic_model: JumpModel, rng: np.random.Generator) -> None:
     """At ``phi_c`` only the ``c0`` coefficient counts: ``k = exp(c0)``, ``c_d = c0^2``.
 
     ``x = 0`` makes the c1 and c2 terms exactly zero, so rtol 1e-12.
@@ -291,7 +290,7 @@ def test_quadratic_value_at_phi_c(quadratic_model: JumpModel) -> None:
         "sigma_mm[0.602]",
         "sigma_mm[0.622]",
     ]
-    u = m.sample_prior(np.random.default_rng(8), 5)
+    u = m.sample_prior(rng, 5)
     vals = m.parameter_values(u, np.array([EXPERIMENT.phi_c]))
     np.testing.assert_allclose(vals["k"][:, 0], np.exp(u[:, 0]), rtol=1e-12)
     np.testing.assert_allclose(vals["c_d"][:, 0], u[:, 3] ** 2, rtol=1e-12)
@@ -304,7 +303,9 @@ def test_quadratic_value_at_phi_c(quadratic_model: JumpModel) -> None:
     np.testing.assert_allclose(at_data["k"], np.exp(log_k), rtol=1e-12)
 
 
-def test_quadratic_implied_out_of_bounds(quadratic_model: JumpModel) -> None:
+def test_quadratic_implied_out_of_bounds(
+    quadratic_model: JumpModel, rng: np.random.Generator
+) -> None:
     """Coefficients inside their own priors whose implied law leaves the bounds get -inf.
 
     ``k:c1 = 400`` is inside its prior (bound ``log(250) / 0.01 ~ 552``) but makes
@@ -325,7 +326,7 @@ def test_quadratic_implied_out_of_bounds(quadratic_model: JumpModel) -> None:
     lp, ll = m(walkers)
     assert np.all(lp == -np.inf)
     assert np.all(ll == -np.inf)
-    starts = m.sample_prior(np.random.default_rng(9), 20)
+    starts = m.sample_prior(rng, 20)
     assert np.all(np.isfinite(m.log_prior(starts)))
 
 

@@ -1,7 +1,8 @@
 """The simulator against the project's converged reference heights.
 
 ``tests/data/reference-heights.csv`` (the project's copy of ``shared/reference-heights.csv``,
-checked equal to it wherever ``shared/`` sits beside the repository) is a batch table
+checked equal to it wherever the shared contracts are: ``shared_file`` in
+``tests/conftest.py``) is a batch table
 (``granbayes simulate --batch`` input) with a ``height_mm`` column: one jump per row,
 every command, every force term, elastic and plastic beds. Each row is its own test,
 named by its row number, command and the non-zero force parameters, so a failure says
@@ -20,7 +21,6 @@ from granbayes import SolverOptions, load_batch_table, simulate_table
 from granbayes.forces import PARAMETER_NAMES
 
 REFERENCE_HEIGHTS = Path(__file__).resolve().parent / "data" / "reference-heights.csv"
-SHARED_REFERENCE_HEIGHTS = Path(__file__).resolve().parents[2] / "shared" / "reference-heights.csv"
 
 #: The project contract: default solver settings reproduce converged heights within this.
 DEFAULT_TOLERANCE_MM = 0.05
@@ -48,11 +48,13 @@ def _collect() -> list:
 ROWS = _collect()
 
 
-def test_project_copy_equals_the_shared_reference() -> None:
-    """The repository's copy is byte-identical to ``shared/`` (when shared/ is beside it)."""
-    if not SHARED_REFERENCE_HEIGHTS.is_file():
-        pytest.skip("shared/ is not beside this clone: the project's own copy is used")
-    assert REFERENCE_HEIGHTS.read_bytes() == SHARED_REFERENCE_HEIGHTS.read_bytes()
+def test_project_copy_equals_the_shared_reference(shared_file) -> None:
+    """The repository's copy is byte-identical to ``shared/reference-heights.csv``.
+
+    Skipped (saying so) only in a clone without ``shared/``; every other test of this
+    module reads the repository's copy.
+    """
+    assert REFERENCE_HEIGHTS.read_bytes() == shared_file("reference-heights.csv").read_bytes()
 
 
 @pytest.fixture(scope="module")

@@ -77,8 +77,7 @@ def check_outputs(out: Path, n_replicates: int) -> pd.DataFrame:
 # ----------------------------------------------------------------------------------------
 # Statistics (no cluster)
 # ----------------------------------------------------------------------------------------
-def test_summary_of_uniform_and_of_biased_ranks() -> None:
-    rng = np.random.default_rng(0)
+def test_summary_of_uniform_and_of_biased_ranks(rng: np.random.Generator) -> None:
     n, n_draws = 400, 99
 
     def table(ranks: np.ndarray) -> pd.DataFrame:
