@@ -41,6 +41,17 @@ __all__ = [
 #: Credible-interval probability reported everywhere (equal-tailed).
 CI_PROB = 0.90
 
+#: arviz-stats warns (UserWarning) whenever a Pareto k of PSIS-LOO exceeds its threshold.
+#: granbayes reports the k values itself (:func:`loo`: ``pareto_k``, ``max_pareto_k``,
+#: ``n_bad_k``; the fit report lists them, ``diagnose`` refits such jumps exactly), so this
+#: one warning is silenced where LOO is computed; every other warning surfaces.
+_PARETO_K_WARNING = "Estimated shape parameter of Pareto distribution is greater than"
+
+
+def _ignore_pareto_k_warning() -> None:
+    """Inside ``warnings.catch_warnings()``: silence only :data:`_PARETO_K_WARNING`."""
+    warnings.filterwarnings("ignore", message=_PARETO_K_WARNING, category=UserWarning)
+
 
 def build_datatree(
     posterior: Mapping[str, np.ndarray],
@@ -119,7 +130,13 @@ def build_datatree(
     all_coords = {k: np.asarray(v) for k, v in coords.items() if k in used}
     all_coords["jump"] = np.arange(n_jump)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
+        # every walker of the ensembles is a chain, so a run keeps more chains than draws
+        # by design; ArviZ's check of the dimension names would flag it as a naming error
+        warnings.filterwarnings(
+            "ignore",
+            message="Found chain dimension to be longer than draw dimension",
+            category=UserWarning,
+        )
         dt = az.from_dict(groups, coords=all_coords, dims=all_dims)
     extra = {
         c: ("jump", observed[c].to_numpy())
@@ -262,7 +279,7 @@ def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
             "n_bad_k": int(np.sum(k > 0.7)),
         }
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+        _ignore_pareto_k_warning()  # the k values are returned
         res = az.loo(dt, pointwise=True, var_name="height_mm")
     k = np.asarray(res.pareto_k)
     return {
@@ -288,7 +305,7 @@ def elpd_difference(elpd_i_a: np.ndarray, elpd_i_b: np.ndarray) -> tuple[float, 
 def compare(models: Mapping[str, xr.DataTree]) -> pd.DataFrame:
     """PSIS-LOO comparison (``arviz.compare``): ``elpd``, ``elpd_diff``, ``dse``, ``weight``."""
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+        _ignore_pareto_k_warning()  # flagged per model in the ``warning`` column
         return az.compare(dict(models), var_name="height_mm")
 
 
@@ -308,10 +325,8 @@ def plot_diagnostics(
     written = []
     for kind, fn in (("trace", azp.plot_trace), ("rank", azp.plot_rank)):
         path = Path(out_dir) / f"{kind}{stem}.png"
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            pc = fn(dt, var_names=list(var_names), backend="matplotlib")
-            pc.savefig(path, dpi=110)
+        pc = fn(dt, var_names=list(var_names), backend="matplotlib")
+        pc.savefig(path, dpi=110)
         plt.close("all")
         written.append(path)
     return written
@@ -329,7 +344,7 @@ def loo_pit(dt: xr.DataTree) -> np.ndarray:
     ndarray, shape (jump,)
     """
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+        _ignore_pareto_k_warning()  # the PSIS weights' k values are reported by ``loo``
         pit = az.loo_pit(_pit_tree(dt), var_names=["height_mm"])
     return np.asarray(pit["height_mm"].values, dtype=float)
 
@@ -395,7 +410,7 @@ def plot_loo_pit(
     from matplotlib import pyplot as plt
 
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+        _ignore_pareto_k_warning()  # the PSIS weights' k values are reported by ``loo``
         pc = azp.plot_loo_pit(
             _pit_tree(dt),
             var_names=["height_mm"],
@@ -487,19 +502,17 @@ def plot_prior_posterior(
     tree = xr.DataTree.from_dict(groups)
     n_phi = tree["posterior"].sizes.get("phi", 1)
     shown = {n: (labels or {}).get(n, f"log₁₀ {n}" if n in log10 else n) for n in names}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        pc = azp.plot_prior_posterior(
-            tree,
-            var_names=names,
-            backend="matplotlib",
-            labeller=_UnitLabeller(shown),
-            col_wrap=n_phi,
-            figure_kwargs={
-                "figsize": (3.0 * n_phi + 0.6, 2.3 * len(names) + 1.2),
-                "layout": "constrained",
-            },
-        )
+    pc = azp.plot_prior_posterior(
+        tree,
+        var_names=names,
+        backend="matplotlib",
+        labeller=_UnitLabeller(shown),
+        col_wrap=n_phi,
+        figure_kwargs={
+            "figsize": (3.0 * n_phi + 0.6, 2.3 * len(names) + 1.2),
+            "layout": "constrained",
+        },
+    )
     fig = pc.viz["figure"].item()
     for legend in fig.legends:
         legend.remove()
@@ -548,9 +561,7 @@ def sbc_uniformity(pit: Mapping[str, np.ndarray], phis: Sequence[float]) -> dict
     import arviz_stats  # noqa: F401  (registers the ``azstats`` accessor)
 
     ds = _sbc_dataset(pit, phis)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        p_values, _, _ = ds.azstats.uniformity_test(dim=["replicate"], method="pot_c")
+    p_values, _, _ = ds.azstats.uniformity_test(dim=["replicate"], method="pot_c")
     return {name: np.atleast_1d(p_values[name].values) for name in pit}
 
 
@@ -597,17 +608,15 @@ def plot_sbc_ecdf(
     ds = _sbc_dataset(pit, phis)
     n = ds.sizes["replicate"]
     n_phi, n_var = len(phis), len(pit)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        pc = azp.plot_ecdf_pit(
-            xr.DataTree.from_dict({"prior_sbc": ds}),
-            group="prior_sbc",
-            sample_dims=["replicate"],
-            envelope_prob=band_prob,
-            backend="matplotlib",
-            col_wrap=n_phi,
-            figure_kwargs={"figsize": (2.8 * n_phi + 0.6, 2.3 * n_var + 0.6)},
-        )
+    pc = azp.plot_ecdf_pit(
+        xr.DataTree.from_dict({"prior_sbc": ds}),
+        group="prior_sbc",
+        sample_dims=["replicate"],
+        envelope_prob=band_prob,
+        backend="matplotlib",
+        col_wrap=n_phi,
+        figure_kwargs={"figsize": (2.8 * n_phi + 0.6, 2.3 * n_var + 0.6)},
+    )
     fig = pc.viz["figure"].item()
     _draw_uniform_band(fig, n, band_prob, seed)
     fig.suptitle(

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import os
 import threading
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -339,11 +338,15 @@ class _Aborted(Exception):
 def _tau(chain: np.ndarray) -> np.ndarray:
     """Integrated autocorrelation time per coordinate (emcee's estimator, no tolerance).
 
-    emcee warns when the chain is shorter than 50 tau; the stopping rule applies its own
-    length criterion, so that warning (and only it) is silenced here.
+    ``tol=0``: emcee's own length check (a chain shorter than 50 tau) is off, since the
+    stopping rule applies its own (``tau_factor``). A coordinate that has not moved over
+    the chain (every walker stuck, e.g. all proposals rejected) has a zero-variance
+    autocorrelation function, which emcee normalises by dividing by its zero value: the
+    time is then NaN, which the stopping rule reads as "not yet known" (it needs finite
+    times), so NumPy's divide and invalid-value warnings of that division are silenced
+    here. ``np.errstate`` is local to the thread, so it does not hide anything elsewhere.
     """
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*chain is shorter than", module="emcee")
+    with np.errstate(divide="ignore", invalid="ignore"):
         return emcee.autocorr.integrated_time(chain, tol=0)
 
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import types
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -449,11 +448,9 @@ def test_arviz_functions_run_on_the_datatree(recovery_fit: FitResult) -> None:
     from matplotlib import pyplot as plt
 
     dt = recovery_fit.datatree
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        pc = az.plot_prior_posterior(dt, var_names=["k", "sigma_mm"], backend="matplotlib")
-        psense = az.psense_summary(dt)
-        pit = az.loo_pit(dt)
+    pc = az.plot_prior_posterior(dt, var_names=["k", "sigma_mm"], backend="matplotlib")
+    psense = az.psense_summary(dt)
+    pit = az.loo_pit(dt)
     plt.close("all")
     assert pc is not None
     assert list(psense.index) == ["k[0.612]", "sigma_mm[0.612]"]

@@ -10,6 +10,7 @@ see), and equally supported modes are reported, never silently pooled as converg
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -240,7 +241,12 @@ def _truncated(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lp, blobs
 
 
-@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+# emcee's move subtracts the current log-probability, -inf for the walkers started in the
+# forbidden region: -inf - (-inf) (the proposal is rejected all the same). It warns in the
+# ensemble's thread, and the warning reaches the test (test_warnings_in_ensemble_threads_surface).
+@pytest.mark.filterwarnings(
+    "ignore:invalid value encountered in scalar subtract:RuntimeWarning:emcee.moves.red_blue"
+)
 def test_minus_inf_and_nan_regions_never_crash() -> None:
     """-inf and NaN log-probabilities are rejected, even for walkers that start there.
 
@@ -458,3 +464,69 @@ def test_a_failing_log_prob_stops_every_ensemble() -> None:
 
     with pytest.raises(ZeroDivisionError, match="model failed"):
         run_ensemble(broken, start(), N_BLOBS, seed=0, settings=SHORT)
+
+
+def test_warnings_in_ensemble_threads_surface() -> None:
+    """Warnings raised while the ensembles step side by side (``_Lockstep``) reach the caller.
+
+    Each ensemble steps in a thread of its own (emcee's moves run there), the batched
+    log-probability in the calling thread. A warning from either is shown like any other
+    (here: recorded), and under an ``error`` filter (as in this test suite) it is raised
+    and stops the run, from whichever thread it came.
+    """
+    from granbayes.sampler import _Lockstep
+
+    def log_prob(x: np.ndarray) -> list:  # the batched call, in the calling thread
+        warnings.warn(f"batch of {len(x)}", RuntimeWarning, stacklevel=1)
+        return [(0.0, np.zeros(1))] * len(x)
+
+    lockstep = _Lockstep(log_prob)
+
+    def job(i: int):
+        def step() -> None:  # one ensemble's step, in its own thread
+            lockstep.port(i)(np.zeros((2, 1)))
+            warnings.warn(f"ensemble {i}", UserWarning, stacklevel=1)
+
+        return step
+
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        lockstep.run([job(0), job(1)])
+    shown = sorted((w.category.__name__, str(w.message)) for w in record)
+    expected = [("RuntimeWarning", "batch of 4"), ("UserWarning", "ensemble 0")]
+    assert shown == [*expected, ("UserWarning", "ensemble 1")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        with pytest.raises(UserWarning, match=r"ensemble [01]"):
+            lockstep.run([job(0), job(1)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(RuntimeWarning, match="batch of 4"):
+            lockstep.run([job(0), job(1)])
+
+
+def test_a_warning_of_the_log_prob_reaches_the_caller_of_run_ensembles() -> None:
+    """A warning of the user's log-probability function surfaces from ``run_ensembles``."""
+
+    def warning_gaussian(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        warnings.warn("the model is unsure", UserWarning, stacklevel=1)
+        return gaussian(x)
+
+    settings = SamplerSettings(check_every=20, max_steps=20, n_draws=10)
+    with pytest.warns(UserWarning, match="the model is unsure"):
+        run_ensemble(warning_gaussian, start(), N_BLOBS, seed=0, settings=settings)
+
+
+def test_autocorrelation_time_of_a_stuck_coordinate_is_nan_without_a_warning(
+    rng: np.random.Generator,
+) -> None:
+    """A coordinate no walker has moved in has no autocorrelation time (NaN: "not yet
+    known" for the stopping rule), and computing it does not warn (the suite errors on
+    warnings); the moving coordinate keeps its finite time."""
+    from granbayes.sampler import _tau
+
+    chain = np.zeros((100, 8, 2))
+    chain[:, :, 1] = rng.standard_normal((100, 8))
+    tau = _tau(chain)
+    assert np.isnan(tau[0]) and np.isfinite(tau[1])
