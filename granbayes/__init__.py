@@ -42,7 +42,7 @@ from .simulator import (
 
 if TYPE_CHECKING:
     from .criticism import DiagnoseConfig, Diagnosis, diagnose, residual_table
-    from .fitting import FitConfig, FitResult, compare_commands, fit
+    from .fitting import CommandComparison, FitConfig, FitResult, compare_commands, fit
     from .prediction import Prediction, predict
     from .priors import Prior, default_priors, load_priors
     from .sampler import SamplerSettings
@@ -57,6 +57,7 @@ except _metadata.PackageNotFoundError:  # a source tree that is not installed
 _LAZY = {
     "fit": "fitting",
     "compare_commands": "fitting",
+    "CommandComparison": "fitting",
     "FitConfig": "fitting",
     "FitResult": "fitting",
     "SamplerSettings": "sampler",
@@ -93,6 +94,7 @@ __all__ = [
     "COMMAND_NAMES",
     "PARAMETER_NAMES",
     "TERMS",
+    "CommandComparison",
     "CommandProgram",
     "CommandSettings",
     "DiagnoseConfig",

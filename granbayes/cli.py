@@ -648,7 +648,7 @@ def run_fit(args: argparse.Namespace) -> int:
             progress=bars,
         )
         uniqueness = (
-            compare_commands(experiment, table, result, seed=args.seed, priors=priors)
+            compare_commands(experiment, table, result, seed=args.seed, priors=priors).table
             if args.compare_commands
             else None
         )

@@ -155,7 +155,7 @@ def _demo_fit(out: Path, data: Path, seed: int) -> None:
     source = os.path.relpath(data) if Path(data).is_absolute() else str(data)
     result = fit(experiment, table, config, seed=seed, data_source=source)
     print("One force law for all five commands? (PSIS-LOO per volume fraction) ...")
-    uniqueness = compare_commands(experiment, table, result, seed=seed)
+    uniqueness = compare_commands(experiment, table, result, seed=seed).table
     write_fit_report(result.datatree, out, truth=truth, uniqueness=uniqueness)
     for w in result.warnings:
         print(f"granbayes: warning: {w}", file=sys.stderr)

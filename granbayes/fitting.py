@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-from collections.abc import Callable, Mapping
+import warnings
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -32,7 +33,7 @@ from . import datatree as gdt
 from ._provenance import environment
 from .experiment import COMMAND_NAMES, Experiment
 from .forces import PARAMETERS, terms_of
-from .likelihood import JumpModel, Observations
+from .likelihood import JumpModel, NoiseFamily, Observations, PhiMode, SigmaMode
 from .priors import Prior, default_priors
 from .sampler import ProgressInfo, SamplerRun, SamplerSettings, run_ensembles
 from .simulator import SolverOptions
@@ -41,6 +42,7 @@ from .simulator import SolverOptions
 PARAMETER_ABSENT: dict[str, float | None] = {p.name: p.absent for p in PARAMETERS}
 
 __all__ = [
+    "CommandComparison",
     "FitConfig",
     "FitPart",
     "FitResult",
@@ -84,9 +86,9 @@ class FitConfig:
 
     terms: tuple[str, ...] = ("depth",)
     phi_mode: Literal["per_phi", "quadratic"] = "per_phi"
-    noise: Literal["normal", "student_t"] = "normal"
+    noise: NoiseFamily = "normal"
     nu: float = 4.0
-    sigma_mode: Literal["per_phi", "global"] = "per_phi"
+    sigma_mode: SigmaMode = "per_phi"
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
     fixed: Mapping[str, float] = field(default_factory=dict)
     options: SolverOptions = field(default_factory=SolverOptions)
@@ -323,7 +325,7 @@ def _prepare(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def _make_model(
-    obs: Observations, experiment: Experiment, config: FitConfig, priors, phi_mode: str
+    obs: Observations, experiment: Experiment, config: FitConfig, priors, phi_mode: PhiMode
 ) -> JumpModel:
     return JumpModel(
         obs,
@@ -695,18 +697,28 @@ def _prior_draws(
     return prior, {"height_mm": prior_pred}
 
 
-def _assemble(
-    parts: list[FitPart],
-    experiment: Experiment,
-    table: pd.DataFrame,
-    config: FitConfig,
-    priors: Mapping[str, Prior],
-    seed: int,
-    data_source: str,
-) -> FitResult:
+@dataclass(frozen=True)
+class _Draws:
+    """The kept draws of every run of a fit on one (chain, draw) grid (:func:`_draws`)."""
+
+    posterior: dict[str, np.ndarray]  # parameter [SI] -> (chain, draw, phi) or (..., order)
+    dims: dict[str, list[str]]  # the dimension after (chain, draw) of each posterior variable
+    log_likelihood: np.ndarray  # (chain, draw, jump)
+    height_sim_mm: np.ndarray  # (chain, draw, jump), simulated (no noise) [mm]
+    height_mm: np.ndarray  # (chain, draw, jump), replicated with noise [mm]
+    lp: np.ndarray  # (chain, draw, run): log-probability of each run's walkers
+    log_prior: np.ndarray  # (chain, draw): prior density of the values, summed over runs
+
+
+def _draws(
+    parts: list[FitPart], phis: np.ndarray, n_jump: int, config: FitConfig, seed: int
+) -> _Draws:
+    """Every run's kept draws mapped onto the fit's volume fractions and jumps.
+
+    A run fills the columns of its own volume fractions (``per_phi``: one each) and its own
+    jumps; the replicated heights of run ``i`` use the ``i``-th seed derived from ``seed``.
+    """
     n_chain, n_draw = _common_shape(parts)
-    n_jump = len(table)
-    phis = np.unique(table["phi"].to_numpy(float))
     names = parts[0].model.parameters
     post: dict[str, np.ndarray] = {
         n: np.full((n_chain, n_draw, len(phis)), np.nan) for n in (*names, "sigma_mm")
@@ -732,20 +744,41 @@ def _assemble(
         lp[..., i] = _to_shape(r.log_prob, n_chain, n_draw)
         log_prior += part.model.log_prior_density(flat).reshape(n_chain, n_draw)
         if config.phi_mode == "quadratic":
-            for j, cname in enumerate(part.model.coordinate_names):
-                if ":c" in cname:
-                    pname, order = cname.split(":c")
-                    key = f"{pname}_coef"
-                    post.setdefault(key, np.zeros((n_chain, n_draw, 3)))[..., int(order)] = samples[
-                        ..., j
-                    ]
-                    dims[key] = ["order"]
-    coords = {"phi": phis, "order": np.arange(3), "run": [p.label for p in parts]}
-    observed = table.drop(columns=["jump"])
-    prior, prior_pred = {}, {}
-    if config.n_prior_draws > 0:
-        prior, prior_pred = _prior_draws(parts, phis, n_jump, config, seed)
-    attrs = {
+            _add_coefficients(post, dims, part.model.coordinate_names, samples)
+    return _Draws(post, dims, loglik, sim, rep, lp, log_prior)
+
+
+def _add_coefficients(
+    post: dict[str, np.ndarray],
+    dims: dict[str, list[str]],
+    coordinate_names: list[str],
+    samples: np.ndarray,
+) -> None:
+    """Add the quadratic coefficients of a run to ``post`` as ``<parameter>_coef``.
+
+    Coordinates named ``<parameter>:c<order>`` (sampling coordinates, e.g. ``log k``) fill
+    the ``order`` dimension (0, 1, 2) of ``<parameter>_coef``.
+    """
+    n_chain, n_draw = samples.shape[:2]
+    for j, cname in enumerate(coordinate_names):
+        if ":c" in cname:
+            pname, order = cname.split(":c")
+            key = f"{pname}_coef"
+            post.setdefault(key, np.zeros((n_chain, n_draw, 3)))[..., int(order)] = samples[..., j]
+            dims[key] = ["order"]
+
+
+def _fit_attrs(
+    parts: list[FitPart],
+    experiment: Experiment,
+    observed: pd.DataFrame,
+    config: FitConfig,
+    priors: Mapping[str, Prior],
+    seed: int,
+    data_source: str,
+) -> dict:
+    """The DataTree attributes of a fit: provenance, settings, priors and run diagnostics."""
+    return {
         "seed": int(seed),
         # package versions and the machine: what bit-identical results require to match
         **environment(),
@@ -758,32 +791,77 @@ def _assemble(
             "command": dataclasses.asdict(experiment.command),
             "phi_c": experiment.phi_c,
         },
-        "parameters": list(names),
+        "parameters": list(parts[0].model.parameters),
         "runs": [_run_record(p) for p in parts],
         "converged": all(p.run.converged for p in parts),
         "warnings": _warnings(parts, config),
         "interval": f"{gdt.CI_PROB:.0%} equal-tailed",
         "log_prior": "density of the reported parameter values, summed over runs",
     }
+
+
+def _assemble(
+    parts: list[FitPart],
+    experiment: Experiment,
+    table: pd.DataFrame,
+    config: FitConfig,
+    priors: Mapping[str, Prior],
+    seed: int,
+    data_source: str,
+) -> FitResult:
+    """The :class:`FitResult` of the runs: their draws, prior draws and attributes in one
+    DataTree (:func:`granbayes.datatree.build_datatree`)."""
+    n_jump = len(table)
+    phis = np.unique(table["phi"].to_numpy(float))
+    draws = _draws(parts, phis, n_jump, config, seed)
+    observed = table.drop(columns=["jump"])
+    prior, prior_pred = {}, {}
+    if config.n_prior_draws > 0:
+        prior, prior_pred = _prior_draws(parts, phis, n_jump, config, seed)
     dt = gdt.build_datatree(
-        post,
-        dims=dims,
-        coords=coords,
-        log_likelihood=loglik,
-        posterior_predictive={"height_mm": rep, "height_sim_mm": sim},
+        draws.posterior,
+        dims=draws.dims,
+        coords={"phi": phis, "order": np.arange(3), "run": [p.label for p in parts]},
+        log_likelihood=draws.log_likelihood,
+        posterior_predictive={"height_mm": draws.height_mm, "height_sim_mm": draws.height_sim_mm},
         observed=observed,
-        sample_stats={"lp": lp},
-        attrs=attrs,
+        sample_stats={"lp": draws.lp},
+        attrs=_fit_attrs(parts, experiment, observed, config, priors, seed, data_source),
         stats_dims={"lp": ["run"]},
         prior=prior,
         prior_predictive=prior_pred,
-        log_prior={"log_prior": log_prior},
-        var_attrs=_variable_attrs(names),
+        log_prior={"log_prior": draws.log_prior},
+        var_attrs=_variable_attrs(parts[0].model.parameters),
     )
     return FitResult(dt, parts, config, seed, _warnings(parts, config))
 
 
 # ----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CommandComparison:
+    """One force law for all commands, or one per command? (:func:`compare_commands`)
+
+    Attributes
+    ----------
+    table : pandas.DataFrame
+        One row per volume fraction: ``elpd_shared``, ``elpd_per_command``, ``elpd_diff``
+        (shared minus per-command) [nats], ``elpd_diff_se`` [nats], max Pareto k of both,
+        the preferred model, ``per_command_converged``, and per parameter whether the
+        per-command intervals overlap (``<parameter>_intervals_overlap``).
+    intervals : pandas.DataFrame
+        One row per volume fraction, command and parameter with the posterior ``median``,
+        ``lo`` and ``hi`` (``ci_prob`` equal-tailed) of the per-command fit [SI].
+
+    Unpacking gives ``table, intervals``, as ``compare_commands(..., details=True)`` did.
+    """
+
+    table: pd.DataFrame
+    intervals: pd.DataFrame
+
+    def __iter__(self) -> Iterator[pd.DataFrame]:
+        return iter((self.table, self.intervals))
+
+
 def compare_commands(
     experiment: Experiment,
     table: pd.DataFrame,
@@ -792,9 +870,9 @@ def compare_commands(
     seed: int = 0,
     priors: Mapping[str, Prior] | None = None,
     ci_prob: float = gdt.CI_PROB,
-    details: bool = False,
+    details: bool | None = None,
     max_steps: int = 4000,
-) -> pd.DataFrame | tuple[pd.DataFrame, pd.DataFrame]:
+) -> CommandComparison:
     """One force law for all commands, or one per command? Per volume fraction.
 
     For every volume fraction fitted in ``shared`` (``per_phi`` mode), fits each command
@@ -819,23 +897,25 @@ def compare_commands(
     priors : mapping, optional
     ci_prob : float
         Interval probability for the overlap check.
-    details : bool
-        Also return the per-command posterior intervals.
+    details : bool, optional
+        Deprecated, without effect (a ``DeprecationWarning`` says so): the per-command
+        intervals are always returned.
     max_steps : int
         Step cap of each per-command fit.
 
     Returns
     -------
-    pandas.DataFrame
-        One row per volume fraction: ``elpd_shared``, ``elpd_per_command``, ``elpd_diff``
-        (shared minus per-command), ``elpd_diff_se``, max Pareto k of both, the preferred
-        model, ``per_command_converged``, and per parameter whether the per-command
-        intervals overlap.
-    pandas.DataFrame
-        Only with ``details``: one row per volume fraction, command and parameter with the
-        posterior ``median``, ``lo`` and ``hi`` (``ci_prob`` equal-tailed) of the
-        per-command fit.
+    CommandComparison
+        The comparison per volume fraction (``.table``) and the per-command posterior
+        intervals (``.intervals``); unpacks as ``table, intervals``.
     """
+    if details is not None:
+        warnings.warn(
+            "compare_commands(details=...) is deprecated and has no effect: it returns a "
+            "CommandComparison (.table, .intervals; unpacks as `table, intervals`)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
     if shared.config.phi_mode != "per_phi":
         raise ValueError("compare_commands needs a per_phi fit")
     priors = dict(priors if priors is not None else default_priors())
@@ -907,6 +987,4 @@ def compare_commands(
                 )
             row[f"{pname}_intervals_overlap"] = bool(max(lows) <= min(highs))
         rows.append(row)
-    if details:
-        return pd.DataFrame(rows), pd.DataFrame(per_command_rows)
-    return pd.DataFrame(rows)
+    return CommandComparison(pd.DataFrame(rows), pd.DataFrame(per_command_rows))

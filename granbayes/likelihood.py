@@ -26,6 +26,7 @@ import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 import pandas as pd
@@ -37,7 +38,14 @@ from .forces import PARAMETERS, TERMS, terms_of
 from .priors import Prior, default_priors
 from .simulator import SolverOptions, build_rows, simulate_rows
 
-__all__ = ["Observations", "JumpModel", "SETTING_COLUMNS"]
+__all__ = ["Observations", "JumpModel", "SETTING_COLUMNS", "PhiMode", "NoiseFamily", "SigmaMode"]
+
+#: Parametrisation of a model across volume fractions (module docstring).
+PhiMode = Literal["shared", "quadratic"]
+#: Noise family of the measured heights.
+NoiseFamily = Literal["normal", "student_t"]
+#: The scatter ``sigma_mm``: one per volume fraction, or one for all.
+SigmaMode = Literal["per_phi", "global"]
 
 #: Columns that, with ``phi`` and ``command``, define one simulation.
 SETTING_COLUMNS = ("amplitude_mm", "freq_hz", "delay_ms", "settle_periods")
@@ -157,10 +165,10 @@ class JumpModel:
         terms: Sequence[str],
         *,
         priors: Mapping[str, Prior] | None = None,
-        phi_mode: str = "shared",
-        noise: str = "normal",
+        phi_mode: PhiMode = "shared",
+        noise: NoiseFamily = "normal",
         nu: float = 4.0,
-        sigma_mode: str = "per_phi",
+        sigma_mode: SigmaMode = "per_phi",
         fixed: Mapping[str, float] | None = None,
         options: SolverOptions | None = None,
         n_threads: int | None = None,

@@ -205,7 +205,7 @@ class SamplerRun:
 
 
 # ----------------------------------------------------------------------------------------
-def _moves(kind: str) -> list:
+def _moves(kind: Literal["de", "stretch"]) -> list:
     if kind == "de":
         return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
     if kind == "stretch":

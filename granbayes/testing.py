@@ -64,6 +64,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import pandas as pd
@@ -397,7 +398,7 @@ def simulate_height_scipy(
     rtol: float = 1e-9,
     atol: float | Sequence[float] = 1e-12,
     *,
-    method: str = "DOP853",
+    method: Literal["DOP853", "RK45"] = "DOP853",
     max_step: float = 0.01,
     window_after: float = 0.6,
 ) -> float:

@@ -38,7 +38,14 @@ from granbayes import (
 from granbayes.cli import EXIT_INPUT, EXIT_OK, main
 from granbayes.criticism import DiagnoseConfig
 from granbayes.datatree import read_datatree, write_datatree
-from granbayes.fitting import FitConfig, FitResult, compare_commands, data_hash, fit
+from granbayes.fitting import (
+    CommandComparison,
+    FitConfig,
+    FitResult,
+    compare_commands,
+    data_hash,
+    fit,
+)
 from granbayes.priors import default_priors
 from granbayes.sampler import (
     CheckpointMismatchError,
@@ -645,9 +652,12 @@ def test_resume_refuses_a_checkpoint_made_for_other_data(two_phis: Path, tmp_pat
 
 
 def test_compare_commands(tiny_fits, two_phis: Path) -> None:
-    """One row per volume fraction with the documented columns and consistent values."""
+    """One row per volume fraction with the documented columns and consistent values, and
+    the per-command intervals behind them; one return type (``details`` is deprecated)."""
     experiment, table = load_folder(two_phis)
-    result = compare_commands(experiment, table, tiny_fits[0], seed=2)
+    comparison = compare_commands(experiment, table, tiny_fits[0], seed=2)
+    assert isinstance(comparison, CommandComparison)
+    result, intervals = comparison.table, comparison.intervals
     expected_columns = [
         "phi",
         "elpd_shared",
@@ -671,9 +681,14 @@ def test_compare_commands(tiny_fits, two_phis: Path) -> None:
     assert np.all(result["elpd_diff_se"] >= 0)
     assert set(result["preferred"]) <= {"shared", "per_command"}
     assert result["k_intervals_overlap"].dtype == bool
-    # the per-command intervals behind the overlap flags (same seed: the same fits)
-    again, intervals = compare_commands(experiment, table, tiny_fits[0], seed=2, details=True)
+    # the former details=True call still unpacks (same seed: the same fits), and warns
+    with pytest.warns(DeprecationWarning, match="details"):
+        again, again_intervals = compare_commands(
+            experiment, table, tiny_fits[0], seed=2, details=True
+        )
     pd.testing.assert_frame_equal(again, result)
+    pd.testing.assert_frame_equal(again_intervals, intervals)
+    # the per-command intervals behind the overlap flags
     assert list(intervals.columns) == ["phi", "command", "parameter", "median", "lo", "hi"]
     assert len(intervals) == 2 * len(THREE_COMMANDS)
     assert set(intervals["command"]) == set(THREE_COMMANDS)
