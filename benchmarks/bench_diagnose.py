@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from granbayes import load_experiment, load_jumps, simulate
-from granbayes.criticism import DiagnoseConfig, diagnose
+from granbayes.criticism import DiagnoseSettings, diagnose
 from granbayes.report import write_diagnosis_report
 from granbayes.synthetic import REFERENCE_DATA
 
@@ -52,7 +52,7 @@ def main() -> None:
     simulate("single", 0.612, {"k": 3000.0})  # compile / load the cache outside the timing
     experiment = load_experiment(folder)
     table = load_jumps(folder, experiment)
-    config = dataclasses.replace(DiagnoseConfig(), screen=not args.no_screen)
+    config = dataclasses.replace(DiagnoseSettings(), screen=not args.no_screen)
     t0 = time.perf_counter()
     d = diagnose(experiment, table, config, seed=args.seed, data_source=str(folder))
     t_loop = time.perf_counter() - t0

@@ -23,7 +23,7 @@ from pathlib import Path
 import numba
 
 from granbayes import load_experiment, load_jumps, simulate
-from granbayes.fitting import FitConfig, fit
+from granbayes.fitting import FitSettings, fit
 from granbayes.report import write_fit_report
 from granbayes.synthetic import REFERENCE_DATA
 
@@ -59,7 +59,7 @@ def main() -> None:
     simulate("single", 0.612, {"k": 3000.0})  # compile / load the cache outside the timing
     experiment = load_experiment(DATA)
     table = load_jumps(DATA, experiment)
-    config = FitConfig(terms=("depth", "drag"))
+    config = FitSettings(terms=("depth", "drag"))
     with tempfile.TemporaryDirectory() as tmp:
         prof = cProfile.Profile()
         t0 = time.perf_counter()

@@ -8,7 +8,7 @@ a. **Compile time.** ``import granbayes; granbayes.simulate("single", 0.612, {"k
 b. **Mixed workload.** N jumps (default 5000), the five commands equally, force parameters
    drawn uniformly over realistic ranges (seeded). Cost per jump on one thread (median of 5
    timed runs after a warm-up), per command, accuracy against
-   ``SolverOptions.converged()`` and the two-thread throughput.
+   ``SolverSettings.converged()`` and the two-thread throughput.
 c. **solve_ivp comparison.** A subset of the same jumps with the plain
    ``scipy.integrate.solve_ivp`` implementation of ``granbayes.testing`` and with
    granbayes, timed in the same run.
@@ -52,7 +52,7 @@ import granbayes
 from granbayes.commands import CommandProgram, build_command
 from granbayes.experiment import COMMAND_NAMES, Robot
 from granbayes.forces import typical_ranges
-from granbayes.simulator import SolverOptions, Status, build_rows, simulate_rows
+from granbayes.simulator import SolverSettings, Status, build_rows, simulate_rows
 from granbayes.testing import simulate_height_scipy
 
 BENCH_DIR = Path(__file__).resolve().parent
@@ -164,7 +164,7 @@ def programs() -> tuple[CommandProgram, ...]:
 
 
 def run(
-    workload: Workload, options: SolverOptions | None = None, n_threads: int = 1
+    workload: Workload, options: SolverSettings | None = None, n_threads: int = 1
 ) -> granbayes.Heights:
     """Simulate a workload with one program per command."""
     return simulate_rows(
@@ -253,7 +253,7 @@ def bench_workload(workload: Workload, repeats: int) -> tuple[dict, np.ndarray, 
     two_threads = threads_used(2)
     two = repeat_timed(lambda: run(workload, n_threads=2), repeats)
     t0 = time.perf_counter()
-    conv = run(workload, SolverOptions.converged(), n_threads=2)
+    conv = run(workload, SolverSettings.converged(), n_threads=2)
     t_conv = time.perf_counter() - t0
     ok = (res.status == Status.OK) & (conv.status == Status.OK)
     err = np.abs(res.height_mm - conv.height_mm)
@@ -290,7 +290,7 @@ def bench_workload(workload: Workload, repeats: int) -> tuple[dict, np.ndarray, 
             "speedup": statistics.median(one) / statistics.median(two),
         },
         "converged_reference": {
-            "options": "SolverOptions.converged()",
+            "options": "SolverSettings.converged()",
             "wall_s_two_threads": t_conv,
             "mean_steps": float(conv.n_steps.mean()),
         },
@@ -364,7 +364,7 @@ def bench_scipy(
     batch = repeat_timed(lambda: run(sub), repeats)
     heights = run(sub).height_mm
     out["granbayes"] = {
-        "settings": "SolverOptions() defaults, n_threads=1",
+        "settings": "SolverSettings() defaults, n_threads=1",
         "repeats": repeats,
         "copies_per_jump": copies,
         "us_per_jump_median": float(np.median(per_jump)) * 1e6,
@@ -500,7 +500,7 @@ def render_markdown(results: dict) -> str:
         f"{w['n_jumps']} jumps, the five commands equally, default robot; uniform draws "
         f"(numpy Generator, seed {w['seed']}): {ranges}, phi {w['phi_range'][0]}-"
         f"{w['phi_range'][1]}. One `simulate_rows` batch with one program per command; "
-        "errors against the same batch with `SolverOptions.converged()`. On one thread the "
+        "errors against the same batch with `SolverSettings.converged()`. On one thread the "
         "whole batch and the per-command batches are timed in alternating rounds."
     )
     add("")
@@ -552,7 +552,7 @@ def render_markdown(results: dict) -> str:
         "jumps), timed one by one with the plain `scipy.integrate.solve_ivp` implementation "
         "(`granbayes.testing`: Python right-hand side, terminal events for the regime "
         "changes, `max_step` 0.01 s as in granbayes) and with granbayes, in the same run. "
-        "Errors against `SolverOptions.converged()`."
+        "Errors against `SolverSettings.converged()`."
     )
     add("")
     add("| implementation | settings | median per jump | mean per jump | max error [mm] |")

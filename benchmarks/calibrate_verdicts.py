@@ -44,7 +44,7 @@ from granbayes.calibration import (
     summarize,
 )
 from granbayes.campaign import Task, run_campaign, spawn_seeds
-from granbayes.criticism import DiagnoseConfig
+from granbayes.criticism import DiagnoseSettings
 from granbayes.report import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -124,7 +124,7 @@ def figure(summary: pd.DataFrame) -> Figure:
     return fig
 
 
-def write_summary(out: Path, results: pd.DataFrame, config: DiagnoseConfig, seed: int) -> None:
+def write_summary(out: Path, results: pd.DataFrame, config: DiagnoseSettings, seed: int) -> None:
     """summary.md, summary.json, rates.png from the tidy results."""
     summary = summarize(results)
     swept = sweep(results)
@@ -190,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         print(f"error: --kinds: unknown {unknown}; expected {', '.join(CASE_KINDS)}")
         return 2
-    config = DiagnoseConfig()
+    config = DiagnoseSettings()
     todo = tasks(kinds, args.null, args.per_term, args.seed)
     description = {
         "kind": "granbayes.calibration",

@@ -36,7 +36,7 @@ import numba
 
 from granbayes import load_experiment, load_jumps, simulate
 from granbayes.campaign import local_cluster_size
-from granbayes.fitting import FitConfig
+from granbayes.fitting import FitSettings
 from granbayes.sampler import SamplerSettings
 from granbayes.sbc import run_sbc
 from granbayes.synthetic import REFERENCE_DATA
@@ -73,7 +73,7 @@ def main() -> None:
     experiment = load_experiment(DATA)
     design = load_jumps(DATA, experiment)
     sampler = QUICK if args.quick else FULL
-    config = FitConfig(terms=("depth", "drag"), sampler=sampler)
+    config = FitSettings(terms=("depth", "drag"), sampler=sampler)
     runs = []
     for workers in worker_counts:
         out = args.out.with_name(f"{args.out.name}-w{workers}")

@@ -38,8 +38,8 @@ import matplotlib
 import numpy as np
 
 import granbayes as gb
-from granbayes.criticism import DiagnoseConfig, diagnose
-from granbayes.fitting import FitConfig, fit
+from granbayes.criticism import DiagnoseSettings, diagnose
+from granbayes.fitting import FitSettings, fit
 from granbayes.sampler import SamplerSettings
 from granbayes.synthetic import make_jumps, write_experiment
 
@@ -118,7 +118,7 @@ print(table[["phi", "command", "freq_hz", "trial", "height_mm", "source"]].head(
 # report. Here we fit the law the data were made with; step 7 finds it without being told.
 
 # %%
-config = FitConfig(terms=("depth", "compaction"), sampler=FAST, n_prior_draws=100)
+config = FitSettings(terms=("depth", "compaction"), sampler=FAST, n_prior_draws=100)
 result = fit(experiment, table, config, seed=SEED, data_source="my-lab (synthetic)")
 print("converged:", result.converged)
 for warning in result.warnings:
@@ -180,7 +180,7 @@ print(f"truth (noiseless): {true_height.height_mm[0]:.1f} mm")
 # report; there every other term of the library is a candidate (here two, to be quick).
 
 # %%
-diag_config = DiagnoseConfig(baseline=("depth",), candidates=("drag", "compaction"), sampler=FAST)
+diag_config = DiagnoseSettings(baseline=("depth",), candidates=("drag", "compaction"), sampler=FAST)
 diagnosis = diagnose(experiment, table, diag_config, seed=SEED, data_source="my-lab")
 record = diagnosis.to_json()
 print("verdict:", record["verdict"])

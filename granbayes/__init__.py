@@ -7,16 +7,23 @@ The package follows the flow of data:
 (DataTree) -> ``saved`` (a fit read back) -> ``prediction`` -> ``criticism`` -> report.
 
 The public API is what ``granbayes`` exports (``__all__``): reading experiments,
-simulating, fitting (:func:`fit`, :class:`FitConfig`, :class:`FitResult`,
+simulating, fitting (:func:`fit`, :class:`FitSettings`, :class:`FitResult`,
 :class:`SamplerSettings`), reading a fit back (:func:`load_fit`, :class:`SavedFit`),
 predicting (:func:`predict`, :class:`Prediction`) and criticising (:func:`diagnose`,
-:class:`DiagnoseConfig`, :class:`Diagnosis`, :func:`residual_table`). The inference names are
+:class:`DiagnoseSettings`, :class:`Diagnosis`, :func:`residual_table`). The inference names are
 imported on first use, so ``import granbayes`` stays as fast as the simulator needs.
+
+Settings objects are named ``*Settings``: :class:`FitSettings`, :class:`SamplerSettings`,
+:class:`SolverSettings`, :class:`DiagnoseSettings`. Their former names ``FitConfig``,
+``SolverOptions`` and ``DiagnoseConfig`` are deprecated aliases of the same classes:
+still importable (from ``granbayes`` and from their modules), with a
+``DeprecationWarning``.
 """
 
 import importlib.metadata as _metadata
 from typing import TYPE_CHECKING
 
+from ._deprecated import warn_alias as _warn_alias
 from .commands import CommandProgram, Segment, build_command
 from .errors import InputError
 from .experiment import (
@@ -31,7 +38,7 @@ from .experiment import (
 from .forces import PARAMETER_NAMES, TERMS, ForceLaw
 from .simulator import (
     Heights,
-    SolverOptions,
+    SolverSettings,
     Status,
     Trajectory,
     simulate,
@@ -41,8 +48,8 @@ from .simulator import (
 )
 
 if TYPE_CHECKING:
-    from .criticism import DiagnoseConfig, Diagnosis, diagnose, residual_table
-    from .fitting import CommandComparison, FitConfig, FitResult, compare_commands, fit
+    from .criticism import DiagnoseSettings, Diagnosis, diagnose, residual_table
+    from .fitting import CommandComparison, FitResult, FitSettings, compare_commands, fit
     from .prediction import Prediction, predict
     from .priors import Prior, default_priors, load_priors
     from .sampler import SamplerSettings
@@ -58,7 +65,7 @@ _LAZY = {
     "fit": "fitting",
     "compare_commands": "fitting",
     "CommandComparison": "fitting",
-    "FitConfig": "fitting",
+    "FitSettings": "fitting",
     "FitResult": "fitting",
     "SamplerSettings": "sampler",
     "load_fit": "saved",
@@ -66,7 +73,7 @@ _LAZY = {
     "predict": "prediction",
     "Prediction": "prediction",
     "diagnose": "criticism",
-    "DiagnoseConfig": "criticism",
+    "DiagnoseSettings": "criticism",
     "Diagnosis": "criticism",
     "residual_table": "criticism",
     "Prior": "priors",
@@ -75,7 +82,25 @@ _LAZY = {
 }
 
 
+#: Deprecated aliases of renamed settings classes (old name -> new name): importable from
+#: here and from their modules, with a DeprecationWarning; not in ``__all__``.
+_DEPRECATED = {
+    "FitConfig": "FitSettings",
+    "DiagnoseConfig": "DiagnoseSettings",
+    "SolverOptions": "SolverSettings",
+}
+
+
 def __getattr__(name: str) -> object:
+    if name in _DEPRECATED:
+        new = _DEPRECATED[name]
+        _warn_alias(__name__, name, new)
+        return globals()[new] if new in globals() else _lazy(new)
+    return _lazy(name)
+
+
+def _lazy(name: str) -> object:
+    """Import a public name of :data:`_LAZY` on first use."""
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module 'granbayes' has no attribute {name!r}")
@@ -97,10 +122,10 @@ __all__ = [
     "CommandComparison",
     "CommandProgram",
     "CommandSettings",
-    "DiagnoseConfig",
+    "DiagnoseSettings",
     "Diagnosis",
     "Experiment",
-    "FitConfig",
+    "FitSettings",
     "FitResult",
     "ForceLaw",
     "Heights",
@@ -111,7 +136,7 @@ __all__ = [
     "SamplerSettings",
     "SavedFit",
     "Segment",
-    "SolverOptions",
+    "SolverSettings",
     "Status",
     "Trajectory",
     "__version__",

@@ -37,7 +37,7 @@ import numpy as np
 import pandas as pd
 
 from .commands import COMMAND_NAMES
-from .criticism import DiagnoseConfig, diagnose
+from .criticism import DiagnoseSettings, diagnose
 from .experiment import CommandSettings, Experiment, Robot
 from .simulator import simulate
 
@@ -192,7 +192,7 @@ def make_case(kind: str, seed: int, trials: int = 3) -> Case:
 
 
 def diagnose_case(
-    kind: str, index: int, config: DiagnoseConfig | None = None, *, seed: int
+    kind: str, index: int, config: DiagnoseSettings | None = None, *, seed: int
 ) -> list[dict[str, Any]]:
     """Campaign task: make a case, run ``diagnose`` on it and record the outcome.
 
@@ -202,7 +202,7 @@ def diagnose_case(
         Case kind (:data:`CASE_KINDS`).
     index : int
         Replicate number within its kind (recorded).
-    config : DiagnoseConfig, optional
+    config : DiagnoseSettings, optional
         The rule and sampler settings under study.
     seed : int
         The task's seed: the case is drawn from it, and ``diagnose`` gets a spawned one.
@@ -260,7 +260,7 @@ def diagnose_case(
 
 
 def diagnose_folder(
-    folder: str, *, seed: int, config: DiagnoseConfig | None = None
+    folder: str, *, seed: int, config: DiagnoseSettings | None = None
 ) -> list[dict[str, Any]]:
     """Campaign task: diagnose an experiment folder with one seed and summarise the outcome.
 
@@ -274,7 +274,7 @@ def diagnose_folder(
         Experiment folder.
     seed : int
         Seed of the diagnosis.
-    config : DiagnoseConfig, optional
+    config : DiagnoseSettings, optional
 
     Returns
     -------

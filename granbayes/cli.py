@@ -601,7 +601,7 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _fit_config(args: argparse.Namespace):
-    from .fitting import FitConfig
+    from .fitting import FitSettings
     from .sampler import SamplerSettings
 
     _check_inference_arguments(args)
@@ -610,7 +610,7 @@ def _fit_config(args: argparse.Namespace):
         n_walkers=args.walkers, n_ensembles=args.ensembles, max_steps=args.max_steps
     )
     try:
-        return FitConfig(
+        return FitSettings(
             terms=terms,
             phi_mode=args.phi_mode,
             noise=args.noise,
@@ -744,7 +744,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     """``granbayes diagnose``: the model-criticism loop, written atomically to OUT."""
     import dataclasses as dc
 
-    from .criticism import DiagnoseConfig, diagnose
+    from .criticism import DiagnoseSettings, diagnose
     from .experiment import load_jumps
     from .forces import terms_of
     from .priors import load_priors
@@ -759,7 +759,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
         return names
 
     _check_inference_arguments(args)
-    config = DiagnoseConfig(
+    config = DiagnoseSettings(
         baseline=terms(args.baseline, "--baseline"),
         candidates=None if args.candidates is None else terms(args.candidates, "--candidates"),
         screen=not args.no_screen,
@@ -851,7 +851,7 @@ def run_sbc_command(args: argparse.Namespace) -> int:
     """``granbayes sbc``: simulation-based calibration of fit as a Dask campaign."""
     from .campaign import CampaignError
     from .experiment import load_jumps
-    from .fitting import FitConfig
+    from .fitting import FitSettings
     from .priors import load_priors
     from .sampler import SamplerSettings
 
@@ -861,7 +861,7 @@ def run_sbc_command(args: argparse.Namespace) -> int:
         n_walkers=args.walkers, n_ensembles=args.ensembles, max_steps=args.max_steps
     )
     try:
-        config = FitConfig(terms=terms, sampler=sampler)
+        config = FitSettings(terms=terms, sampler=sampler)
     except ValueError as exc:
         raise UsageError(f"--terms {args.terms}: {exc}") from None
     if args.replicates < 1:

@@ -52,9 +52,10 @@ import xarray as xr
 from scipy import stats
 
 from . import datatree as gdt
+from ._deprecated import alias_getattr
 from ._provenance import environment
 from .experiment import Experiment
-from .fitting import FitConfig, FitResult, fit, screen
+from .fitting import FitResult, FitSettings, fit, screen
 from .forces import TERMS, terms_of
 from .likelihood import Observations
 from .priors import Prior
@@ -64,7 +65,7 @@ from .saved import SavedFit
 __all__ = [
     "CELL_KEYS",
     "Candidate",
-    "DiagnoseConfig",
+    "DiagnoseSettings",
     "Diagnosis",
     "FitBank",
     "IDENTIFIABILITY_LEVELS",
@@ -78,13 +79,16 @@ __all__ = [
     "verdict",
 ]
 
+#: Deprecated alias (old name -> new name): importable, with a DeprecationWarning.
+__getattr__ = alias_getattr(__name__, {"DiagnoseConfig": "DiagnoseSettings"})
+
 #: The settings that define one cell of repeated jumps.
 CELL_KEYS = ("command", "phi", "freq_hz", "amplitude_mm", "delay_ms", "settle_periods")
 
 
 @dataclass(frozen=True)
-class DiagnoseConfig:
-    """Settings of the criticism loop.
+class DiagnoseSettings:
+    """Settings of the criticism loop (formerly ``DiagnoseConfig``, now a deprecated alias).
 
     Parameters
     ----------
@@ -268,7 +272,7 @@ def identifiability_table(
     Parameters
     ----------
     dt : xarray.DataTree, FitResult or SavedFit
-        A fit with ``prior`` and ``posterior`` groups (``FitConfig.n_prior_draws > 0``)
+        A fit with ``prior`` and ``posterior`` groups (``FitSettings.n_prior_draws > 0``)
         and its ``priors`` attribute.
     var_names : sequence of str, optional
         Parameters (default: the fit's force parameters and ``sigma_mm``).
@@ -404,7 +408,7 @@ class FitBank:
     experiment : Experiment
     table : pandas.DataFrame
         The jumps.
-    config : DiagnoseConfig
+    config : DiagnoseSettings
     priors : mapping, optional
     seed : int
         Master seed (each law's fits derive their own seeds from it and the law).
@@ -420,7 +424,7 @@ class FitBank:
         self,
         experiment: Experiment,
         table: pd.DataFrame,
-        config: DiagnoseConfig,
+        config: DiagnoseSettings,
         priors: Mapping[str, Prior] | None,
         seed: int,
         data_source: str,
@@ -437,9 +441,9 @@ class FitBank:
         self.loos: dict[tuple[str, ...], dict] = {}
         self.records: dict[tuple[str, ...], FitRecord] = {}
 
-    def _fit_config(self, key: tuple[str, ...], scale: int = 1) -> FitConfig:
+    def _fit_config(self, key: tuple[str, ...], scale: int = 1) -> FitSettings:
         s = self.config.sampler
-        return FitConfig(
+        return FitSettings(
             terms=key,
             sampler=replace(s, max_steps=s.max_steps * scale),
             n_threads=self.config.n_threads,
@@ -698,7 +702,7 @@ class Candidate:
 
 
 def decide(
-    candidates: Sequence[Candidate], n_misfit: int, config: DiagnoseConfig
+    candidates: Sequence[Candidate], n_misfit: int, config: DiagnoseSettings
 ) -> Candidate | None:
     """The selection rule: the candidate to add this round, or ``None``.
 
@@ -712,7 +716,7 @@ def decide(
         This round's scored candidates.
     n_misfit : int
         Misfit cells of the current law.
-    config : DiagnoseConfig
+    config : DiagnoseSettings
         The thresholds.
 
     Returns
@@ -875,7 +879,7 @@ def _score_round(
 def diagnose(
     experiment: Experiment,
     table: pd.DataFrame,
-    config: DiagnoseConfig | None = None,
+    config: DiagnoseSettings | None = None,
     *,
     seed: int = 0,
     priors: Mapping[str, Prior] | None = None,
@@ -891,7 +895,7 @@ def diagnose(
         Robot, command defaults and ``phi_c``.
     table : pandas.DataFrame
         Validated jumps (:func:`granbayes.load_jumps`).
-    config : DiagnoseConfig, optional
+    config : DiagnoseSettings, optional
         Baseline, candidates, MCMC settings and the selection rule.
     seed : int
         Master seed (recorded).
@@ -909,7 +913,7 @@ def diagnose(
     -------
     Diagnosis
     """
-    cfg = config or DiagnoseConfig()
+    cfg = config or DiagnoseSettings()
     table = table.reset_index(drop=True)
     bank = FitBank(experiment, table, cfg, priors, seed, data_source, log, progress)
     pointwise = _Pointwise(bank)

@@ -142,14 +142,14 @@ def _demo_hard_ground(out: Path, experiment: Experiment) -> None:
 def _demo_fit(out: Path, data: Path, seed: int) -> None:
     """Fit depth + drag per volume fraction to ``data`` and answer the uniqueness question."""
     from .experiment import load_jumps
-    from .fitting import FitConfig, compare_commands, fit
+    from .fitting import FitSettings, compare_commands, fit
     from .report import load_truth, write_fit_report
 
     experiment = load_experiment(data)
     table = load_jumps(data, experiment)
     truth_file = data / "truth.toml"
     truth = load_truth(truth_file) if truth_file.exists() else None
-    config = FitConfig(terms=("depth", "drag"))
+    config = FitSettings(terms=("depth", "drag"))
     print(f"Fitting {config.terms} per volume fraction to {len(table)} jumps in {data} ...")
     out.mkdir(parents=True, exist_ok=True)
     source = os.path.relpath(data) if Path(data).is_absolute() else str(data)

@@ -30,20 +30,21 @@ import xarray as xr
 from scipy import optimize
 
 from . import datatree as gdt
+from ._deprecated import alias_getattr
 from ._provenance import environment
 from .experiment import COMMAND_NAMES, Experiment
 from .forces import PARAMETERS, terms_of
 from .likelihood import JumpModel, NoiseFamily, Observations, PhiMode, SigmaMode
 from .priors import Prior, default_priors
 from .sampler import ProgressInfo, SamplerRun, SamplerSettings, run_ensembles
-from .simulator import SolverOptions
+from .simulator import SolverSettings
 
 #: The "off" value of every force parameter (its term absent).
 PARAMETER_ABSENT: dict[str, float | None] = {p.name: p.absent for p in PARAMETERS}
 
 __all__ = [
     "CommandComparison",
-    "FitConfig",
+    "FitSettings",
     "FitPart",
     "FitResult",
     "compare_commands",
@@ -54,10 +55,13 @@ __all__ = [
     "screen",
 ]
 
+#: Deprecated alias (old name -> new name): importable, with a DeprecationWarning.
+__getattr__ = alias_getattr(__name__, {"FitConfig": "FitSettings"})
+
 
 @dataclass(frozen=True)
-class FitConfig:
-    """What to fit and how.
+class FitSettings:
+    """What to fit and how (formerly ``FitConfig``, now a deprecated alias).
 
     Parameters
     ----------
@@ -75,7 +79,7 @@ class FitConfig:
         Ensemble size, chain-length rule, kept draws.
     fixed : mapping of str to float
         Parameters held at given values instead of their ``absent`` value.
-    options : SolverOptions
+    options : SolverSettings
         Integrator settings.
     n_threads : int, optional
         numba threads for the simulator.
@@ -91,7 +95,7 @@ class FitConfig:
     sigma_mode: SigmaMode = "per_phi"
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
     fixed: Mapping[str, float] = field(default_factory=dict)
-    options: SolverOptions = field(default_factory=SolverOptions)
+    options: SolverSettings = field(default_factory=SolverSettings)
     n_threads: int | None = None
     n_prior_draws: int = 200
 
@@ -108,7 +112,7 @@ class FitConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, object]) -> FitConfig:
+    def from_dict(cls, d: Mapping[str, object]) -> FitSettings:
         """The configuration described by :meth:`to_dict` (keys it does not know are ignored).
 
         Parameters
@@ -118,7 +122,7 @@ class FitConfig:
 
         Returns
         -------
-        FitConfig
+        FitSettings
         """
 
         def known(kind: type, values: object) -> dict:
@@ -131,7 +135,7 @@ class FitConfig:
         if "sampler" in fields:
             fields["sampler"] = SamplerSettings(**known(SamplerSettings, fields["sampler"]))
         if "options" in fields:
-            fields["options"] = SolverOptions(**known(SolverOptions, fields["options"]))
+            fields["options"] = SolverSettings(**known(SolverSettings, fields["options"]))
         return cls(**fields)
 
 
@@ -156,7 +160,7 @@ class FitResult:
         provenance attributes.
     parts : list of FitPart
         The ensemble runs (one per volume fraction, or one).
-    config : FitConfig
+    config : FitSettings
     seed : int
     warnings : list of str
         Convergence problems, in words.
@@ -164,7 +168,7 @@ class FitResult:
 
     datatree: xr.DataTree
     parts: list[FitPart]
-    config: FitConfig
+    config: FitSettings
     seed: int
     warnings: list[str]
 
@@ -277,7 +281,7 @@ def _run_part(
     label: str,
     model: JumpModel,
     jumps: np.ndarray,
-    config: FitConfig,
+    config: FitSettings,
     seed: int,
     backend: Path | None,
     resume: bool,
@@ -309,7 +313,7 @@ def _run_part(
     return FitPart(label, model, run, jumps)
 
 
-def _fingerprint(model: JumpModel, config: FitConfig, seed: int) -> str:
+def _fingerprint(model: JumpModel, config: FitSettings, seed: int) -> str:
     """What a checkpoint must match to be resumed: data, priors, model and settings."""
     h = hashlib.sha256()
     h.update(data_hash(model.experiment, model.obs.table).encode())
@@ -325,7 +329,7 @@ def _prepare(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def _make_model(
-    obs: Observations, experiment: Experiment, config: FitConfig, priors, phi_mode: PhiMode
+    obs: Observations, experiment: Experiment, config: FitSettings, priors, phi_mode: PhiMode
 ) -> JumpModel:
     return JumpModel(
         obs,
@@ -345,7 +349,7 @@ def _make_model(
 def part_models(
     experiment: Experiment,
     table: pd.DataFrame,
-    config: FitConfig,
+    config: FitSettings,
     priors: Mapping[str, Prior],
 ) -> list[tuple[str, JumpModel, np.ndarray]]:
     """The sampler runs a fit consists of: label, log-posterior and the jumps of each.
@@ -359,7 +363,7 @@ def part_models(
     experiment : Experiment
     table : pandas.DataFrame
         Validated jumps; row ``i`` is jump ``i``.
-    config : FitConfig
+    config : FitSettings
     priors : mapping of str to Prior
 
     Returns
@@ -385,7 +389,7 @@ def part_models(
 def fit(
     experiment: Experiment,
     table: pd.DataFrame,
-    config: FitConfig | None = None,
+    config: FitSettings | None = None,
     *,
     seed: int = 0,
     priors: Mapping[str, Prior] | None = None,
@@ -403,7 +407,7 @@ def fit(
         Robot, command defaults and ``phi_c``.
     table : pandas.DataFrame
         Validated jumps (:func:`granbayes.load_jumps`).
-    config : FitConfig, optional
+    config : FitSettings, optional
         Terms, parametrisation, noise, sampler settings.
     seed : int
         Master seed; recorded in the result.
@@ -426,7 +430,7 @@ def fit(
     -------
     FitResult
     """
-    config = config or FitConfig()
+    config = config or FitSettings()
     priors = dict(priors if priors is not None else default_priors())
     table = _prepare(table)
     backend = Path(backend) if backend is not None else None
@@ -486,7 +490,7 @@ def _warm_positions(
 def screen(
     experiment: Experiment,
     table: pd.DataFrame,
-    config: FitConfig,
+    config: FitSettings,
     parent: xr.DataTree,
     *,
     seed: int = 0,
@@ -517,7 +521,7 @@ def screen(
     experiment : Experiment
     table : pandas.DataFrame
         Validated jumps.
-    config : FitConfig
+    config : FitSettings
         The extended law (``per_phi`` mode).
     parent : xarray.DataTree
         The fitted nested parent law.
@@ -668,7 +672,7 @@ def _run_record(part: FitPart) -> dict:
     }
 
 
-def _warnings(parts: list[FitPart], config: FitConfig) -> list[str]:
+def _warnings(parts: list[FitPart], config: FitSettings) -> list[str]:
     out = []
     for p in parts:
         out.extend(f"run {p.label}: {w}" for w in p.run.warnings)
@@ -678,7 +682,7 @@ def _warnings(parts: list[FitPart], config: FitConfig) -> list[str]:
 
 
 def _prior_draws(
-    parts: list[FitPart], phis: np.ndarray, n_jump: int, config: FitConfig, seed: int
+    parts: list[FitPart], phis: np.ndarray, n_jump: int, config: FitSettings, seed: int
 ) -> tuple[dict, dict]:
     """Prior draws per volume fraction [SI] and the heights simulated from them [mm]."""
     n = config.n_prior_draws
@@ -711,7 +715,7 @@ class _Draws:
 
 
 def _draws(
-    parts: list[FitPart], phis: np.ndarray, n_jump: int, config: FitConfig, seed: int
+    parts: list[FitPart], phis: np.ndarray, n_jump: int, config: FitSettings, seed: int
 ) -> _Draws:
     """Every run's kept draws mapped onto the fit's volume fractions and jumps.
 
@@ -772,7 +776,7 @@ def _fit_attrs(
     parts: list[FitPart],
     experiment: Experiment,
     observed: pd.DataFrame,
-    config: FitConfig,
+    config: FitSettings,
     priors: Mapping[str, Prior],
     seed: int,
     data_source: str,
@@ -804,7 +808,7 @@ def _assemble(
     parts: list[FitPart],
     experiment: Experiment,
     table: pd.DataFrame,
-    config: FitConfig,
+    config: FitSettings,
     priors: Mapping[str, Prior],
     seed: int,
     data_source: str,

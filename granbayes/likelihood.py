@@ -36,7 +36,7 @@ from .commands import CommandProgram, build_command
 from .experiment import CommandSettings, Experiment
 from .forces import PARAMETERS, TERMS, terms_of
 from .priors import Prior, default_priors
-from .simulator import SolverOptions, build_rows, simulate_rows
+from .simulator import SolverSettings, build_rows, simulate_rows
 
 __all__ = ["Observations", "JumpModel", "SETTING_COLUMNS", "PhiMode", "NoiseFamily", "SigmaMode"]
 
@@ -152,7 +152,7 @@ class JumpModel:
         Whether the scatter is fitted per volume fraction or once.
     fixed : mapping of str to float, optional
         Values of parameters that are not fitted (override ``absent``).
-    options : SolverOptions, optional
+    options : SolverSettings, optional
         Integrator settings.
     n_threads : int, optional
         numba threads for the simulator.
@@ -170,7 +170,7 @@ class JumpModel:
         nu: float = 4.0,
         sigma_mode: SigmaMode = "per_phi",
         fixed: Mapping[str, float] | None = None,
-        options: SolverOptions | None = None,
+        options: SolverSettings | None = None,
         n_threads: int | None = None,
     ) -> None:
         if phi_mode not in ("shared", "quadratic"):
@@ -190,7 +190,7 @@ class JumpModel:
         self.nu = float(nu)
         self.sigma_mode = sigma_mode
         self.fixed = dict(fixed or {})
-        self.options = options or SolverOptions()
+        self.options = options or SolverSettings()
         self.n_threads = n_threads
         self.parameters = tuple(p.name for t in self.terms for p in TERMS[t].parameters)
         self._phis = observations.phis

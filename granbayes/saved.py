@@ -30,7 +30,7 @@ import xarray as xr
 from . import datatree as gdt
 from .errors import InputError
 from .experiment import CommandSettings, Experiment, Robot
-from .fitting import FitConfig, part_models
+from .fitting import FitSettings, part_models
 from .likelihood import SETTING_COLUMNS, JumpModel
 from .priors import Prior
 
@@ -60,7 +60,7 @@ class SavedFit:
         The fit's DataTree: ``posterior`` (force parameters [SI] and ``sigma_mm`` [mm] over
         ``phi``), ``log_likelihood``, ``posterior_predictive``, ``observed_data``,
         ``sample_stats`` and, if drawn, ``prior``, ``prior_predictive``, ``log_prior``.
-    config : FitConfig
+    config : FitSettings
         Terms, ``phi_mode``, noise family and sampler settings of the fit.
     experiment : Experiment
         Robot, default command settings and ``phi_c`` the fit used.
@@ -75,7 +75,7 @@ class SavedFit:
     """
 
     datatree: xr.DataTree
-    config: FitConfig
+    config: FitSettings
     experiment: Experiment
     priors: dict[str, Prior]
     seed: int
@@ -118,7 +118,7 @@ class SavedFit:
                     file=where,
                 )
         try:
-            config = FitConfig.from_dict(_json_attr(dt, "config"))
+            config = FitSettings.from_dict(_json_attr(dt, "config"))
             priors = {k: Prior(**v) for k, v in _json_attr(dt, "priors").items()}
             exp = _json_attr(dt, "experiment")
             experiment = Experiment(

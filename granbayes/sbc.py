@@ -41,7 +41,7 @@ from ._files import atomic_path, write_json, write_text
 from ._provenance import machine, package_versions
 from .campaign import CampaignResult, Task, run_campaign, spawn_seeds
 from .experiment import Experiment
-from .fitting import FitConfig, FitPart, data_hash, fit, part_models
+from .fitting import FitPart, FitSettings, data_hash, fit, part_models
 from .forces import TERMS
 from .priors import Prior, default_priors
 
@@ -90,7 +90,7 @@ class SBCResult:
 def draw_replicate(
     experiment: Experiment,
     design: pd.DataFrame,
-    config: FitConfig,
+    config: FitSettings,
     priors: Mapping[str, Prior],
     rng: np.random.Generator,
 ) -> tuple[pd.DataFrame, dict[float, dict[str, float]]]:
@@ -103,7 +103,7 @@ def draw_replicate(
     design : pandas.DataFrame
         The jumps table of the experiment (:func:`granbayes.load_jumps`); its heights are
         replaced.
-    config : FitConfig
+    config : FitSettings
         Terms, noise family and fixed parameters (``per_phi`` mode).
     priors : mapping of str to Prior
         The priors to draw from.
@@ -193,7 +193,7 @@ def rank_draws(part: FitPart, n_rank_draws: int) -> tuple[np.ndarray, bool]:
 def replicate_ranks(
     experiment: Experiment,
     design: pd.DataFrame,
-    config: FitConfig,
+    config: FitSettings,
     priors: Mapping[str, Prior],
     n_rank_draws: int,
     replicate: int,
@@ -387,7 +387,7 @@ def run_sbc(
     design: pd.DataFrame,
     out: str | Path,
     *,
-    config: FitConfig | None = None,
+    config: FitSettings | None = None,
     n_replicates: int = 100,
     seed: int = 0,
     priors: Mapping[str, Prior] | None = None,
@@ -412,7 +412,7 @@ def run_sbc(
         The experiment's jumps (:func:`granbayes.load_jumps`): which jumps to simulate.
     out : str or Path
         Output folder (built as ``OUT.partial``; replaced only at the end).
-    config : FitConfig, optional
+    config : FitSettings, optional
         Terms and sampler settings of the fits (``phi_mode="per_phi"``).
     n_replicates : int
         Number of replicates (each a prior draw, a simulation and a fit).
@@ -456,7 +456,7 @@ def run_sbc(
     granbayes.campaign.CampaignError
         Unreachable scheduler, or resume of another study; nothing is written then.
     """
-    config = config or FitConfig(terms=("depth", "drag"))
+    config = config or FitSettings(terms=("depth", "drag"))
     if config.phi_mode != "per_phi":
         raise ValueError(f"phi_mode must be 'per_phi' for SBC, got {config.phi_mode!r}")
     if int(n_replicates) < 1:
@@ -521,7 +521,7 @@ def run_sbc(
 def _write_outputs(
     work: Path,
     result: CampaignResult,
-    config: FitConfig,
+    config: FitSettings,
     seed: int,
     n_replicates: int,
     n_rank_draws: int,

@@ -26,6 +26,7 @@ import pandas as pd
 from numpy.typing import ArrayLike
 
 from . import _kernel
+from ._deprecated import alias_getattr
 from .commands import CommandProgram, build_command
 from .experiment import CommandSettings, Experiment, Robot
 from .forces import PARAMETERS, parameter_term
@@ -33,7 +34,7 @@ from .forces import PARAMETERS, parameter_term
 __all__ = [
     "ROW_FIELDS",
     "Heights",
-    "SolverOptions",
+    "SolverSettings",
     "Status",
     "Trajectory",
     "build_rows",
@@ -42,6 +43,9 @@ __all__ = [
     "simulate_table",
     "simulate_trajectory",
 ]
+
+#: Deprecated alias (old name -> new name): importable, with a DeprecationWarning.
+__getattr__ = alias_getattr(__name__, {"SolverOptions": "SolverSettings"})
 
 #: Field order of one input row: robot, phi, then the force-term parameters.
 ROW_FIELDS: tuple[str, ...] = _kernel.ROW_FIELDS
@@ -63,8 +67,8 @@ class Status(enum.IntEnum):
 
 
 @dataclass(frozen=True)
-class SolverOptions:
-    """Integrator settings.
+class SolverSettings:
+    """Integrator settings (formerly ``SolverOptions``, now a deprecated alias).
 
     The defaults give heights within 0.05 mm of the converged solution over the realistic
     parameter ranges (see ``benchmarks/bench_simulator.py`` and the README).
@@ -101,7 +105,7 @@ class SolverOptions:
     closed_form: bool = True
 
     @classmethod
-    def converged(cls) -> SolverOptions:
+    def converged(cls) -> SolverSettings:
         """Tight settings for reference solutions (about 1e-5 mm)."""
         return cls(rtol=1e-11, atol_position=1e-13, atol_velocity=1e-11)
 
@@ -247,7 +251,7 @@ def simulate_rows(
     programs: Sequence[CommandProgram],
     command_index: ArrayLike | None = None,
     *,
-    options: SolverOptions | None = None,
+    options: SolverSettings | None = None,
     n_threads: int | None = None,
 ) -> Heights:
     """Simulate jumps given integrator rows (the lowest-level batched entry point).
@@ -260,7 +264,7 @@ def simulate_rows(
         The commands used in the batch.
     command_index : array_like of int, shape (n,), optional
         Which program each row uses (default: all the first).
-    options : SolverOptions, optional
+    options : SolverSettings, optional
         Integrator settings.
     n_threads : int, optional
         numba threads to use (default: numba's current setting).
@@ -284,7 +288,7 @@ def simulate_rows(
     heights = np.empty(n)
     status = np.empty(n, dtype=np.int8)
     n_steps = np.empty(n, dtype=np.int64)
-    opts = (options or SolverOptions()).as_array()
+    opts = (options or SolverSettings()).as_array()
     with _threads(n_threads):
         _kernel.simulate_batch(rows, index, seg, meta, opts, heights, status, n_steps)
     return Heights(height_mm=heights * 1e3, status=status, n_steps=n_steps)
@@ -296,7 +300,7 @@ def simulate(
     params: Mapping[str, ArrayLike],
     *,
     experiment: Experiment | None = None,
-    options: SolverOptions | None = None,
+    options: SolverSettings | None = None,
     n_threads: int | None = None,
 ) -> Heights:
     """Jump heights of one command for many parameter sets (e.g. the walkers of a sampler).
@@ -312,7 +316,7 @@ def simulate(
         [-], ``k2`` [N/m^2], ``b`` [N s/m]); scalars and 1-d arrays broadcast together.
     experiment : Experiment, optional
         Robot and command settings (defaults of the physics model if omitted).
-    options : SolverOptions, optional
+    options : SolverSettings, optional
         Integrator settings.
     n_threads : int, optional
         numba threads.
@@ -333,7 +337,7 @@ def simulate_table(
     table: pd.DataFrame,
     experiment: Experiment | None = None,
     *,
-    options: SolverOptions | None = None,
+    options: SolverSettings | None = None,
     n_threads: int | None = None,
 ) -> pd.DataFrame:
     """Simulate one jump per row of a table (the CLI's batch mode).
@@ -347,7 +351,7 @@ def simulate_table(
         ``settle_periods``).
     experiment : Experiment, optional
         Defaults for the overrides.
-    options : SolverOptions, optional
+    options : SolverSettings, optional
         Integrator settings.
     n_threads : int, optional
         numba threads.
@@ -402,7 +406,7 @@ def simulate_trajectory(
     params: Mapping[str, float],
     *,
     experiment: Experiment | None = None,
-    options: SolverOptions | None = None,
+    options: SolverSettings | None = None,
     max_step: float = 5e-4,
 ) -> Trajectory:
     """Simulate one jump and record its trajectory.
@@ -417,7 +421,7 @@ def simulate_trajectory(
         Force-term parameters [SI].
     experiment : Experiment, optional
         Robot and command settings.
-    options : SolverOptions, optional
+    options : SolverSettings, optional
         Integrator settings; ``max_step`` below overrides its ``max_step``.
     max_step : float
         Largest step [s], so that plots are smooth (the recorded points are exact
@@ -429,7 +433,7 @@ def simulate_trajectory(
     """
     exp = _experiment(experiment)
     program = _program(command, exp.command)
-    opts = options or SolverOptions()
+    opts = options or SolverSettings()
     opts = dataclasses.replace(opts, max_step=min(opts.max_step, max_step))
     row = build_rows(exp.robot, phi, params)[0]
     seg, meta = program.as_table()

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from .experiment import COMMAND_NAMES, Experiment
-from .simulator import SolverOptions, simulate
+from .simulator import SolverSettings, simulate
 
 __all__ = ["REFERENCE_DATA", "make_jumps", "write_experiment"]
 
@@ -35,7 +35,7 @@ def make_jumps(
     trials: int = 5,
     seed: int = 0,
     label: str = "granbayes.synthetic.make_jumps",
-    options: SolverOptions | None = None,
+    options: SolverSettings | None = None,
     decimals: int | None = 3,
 ) -> pd.DataFrame:
     """Simulate the true law for every cell and add seeded Gaussian scatter.
@@ -57,7 +57,7 @@ def make_jumps(
         command, trial).
     label : str
         Generator named in the ``source`` column.
-    options : SolverOptions, optional
+    options : SolverSettings, optional
         Integrator settings (default: converged).
     decimals : int or None
         ``height_mm`` is rounded to this many decimals of a millimetre (3: micrometres, like
@@ -69,7 +69,7 @@ def make_jumps(
         ``phi, command, freq_hz, trial, height_mm, true_height_mm, source``.
     """
     exp = experiment or Experiment()
-    opts = options or SolverOptions.converged()
+    opts = options or SolverSettings.converged()
     rng = np.random.default_rng(seed)
     sigma = sigma_mm if callable(sigma_mm) else (lambda _phi: float(sigma_mm))
     rows = []

@@ -74,7 +74,7 @@ from scipy.optimize import OptimizeResult, brentq
 from .commands import CommandProgram, build_command
 from .experiment import COMMAND_NAMES, Experiment
 from .forces import PARAMETERS
-from .simulator import SolverOptions
+from .simulator import SolverSettings
 from .synthetic import make_jumps
 
 __all__ = ["COMPACTION_LENGTH", "PARAMETER_DEFAULTS", "simulate_height_scipy", "synthetic_jumps"]
@@ -569,7 +569,7 @@ def synthetic_jumps(
     commands: Sequence[str] = COMMAND_NAMES,
     trials: int = 3,
     label: str = "granbayes.testing.synthetic_jumps",
-    options: SolverOptions | None = None,
+    options: SolverSettings | None = None,
     decimals: int | None = 3,
     settings_columns: bool = False,
     true_heights: bool = False,
@@ -601,8 +601,8 @@ def synthetic_jumps(
         Jumps per cell.
     label : str
         Named in the ``source`` column (``"synthetic: <label> seed=<seed>"``).
-    options : SolverOptions, optional
-        Integrator settings of the true heights (default: ``SolverOptions.converged()``).
+    options : SolverSettings, optional
+        Integrator settings of the true heights (default: ``SolverSettings.converged()``).
     decimals : int or None
         ``height_mm`` rounded to this many decimals [mm]; ``None``: not rounded.
     settings_columns : bool

@@ -9,6 +9,7 @@ at most 300 steps): they need a posterior, not a converged one.
 
 from __future__ import annotations
 
+import importlib
 import io
 import json
 import re
@@ -50,7 +51,7 @@ def write_folder(folder: Path, phis=PHIS, trials: int = 2, seed: int = 5) -> Pat
         phis=phis,
         trials=trials,
         label="tests/test_api.py",
-        options=gb.SolverOptions(),
+        options=gb.SolverSettings(),
     )
     return write_experiment(folder, jumps, gb.Experiment())
 
@@ -69,7 +70,7 @@ def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _fit(folder: Path, phi_mode: str) -> gb.FitResult:
     exp = gb.load_experiment(folder)
     jumps = gb.load_jumps(folder, exp)
-    config = gb.FitConfig(
+    config = gb.FitSettings(
         terms=("depth",), phi_mode=phi_mode, sampler=SHORT, n_threads=1, n_prior_draws=60
     )
     return gb.fit(exp, jumps, config, seed=3, data_source=str(folder))
@@ -107,13 +108,38 @@ def test_public_names_are_the_functions_and_classes() -> None:
     for name in ("fit", "diagnose", "load_fit", "predict", "compare_commands", "residual_table"):
         assert callable(getattr(gb, name)), name
         assert not isinstance(getattr(gb, name), type(fitting_module)), name
-    for name in ("FitConfig", "FitResult", "DiagnoseConfig", "Diagnosis", "SamplerSettings"):
+    for name in ("FitSettings", "FitResult", "DiagnoseSettings", "Diagnosis", "SamplerSettings"):
         assert isinstance(getattr(gb, name), type), name
     for name in ("SavedFit", "Prediction", "Prior"):
         assert isinstance(getattr(gb, name), type), name
     assert set(gb.__all__) <= set(dir(gb))
     with pytest.raises(AttributeError):
         gb.no_such_name  # noqa: B018
+
+
+@pytest.mark.parametrize(
+    ("module", "old", "new"),
+    [
+        ("granbayes", "FitConfig", "FitSettings"),
+        ("granbayes", "DiagnoseConfig", "DiagnoseSettings"),
+        ("granbayes", "SolverOptions", "SolverSettings"),
+        ("granbayes.fitting", "FitConfig", "FitSettings"),
+        ("granbayes.criticism", "DiagnoseConfig", "DiagnoseSettings"),
+        ("granbayes.simulator", "SolverOptions", "SolverSettings"),
+    ],
+)
+def test_former_names_of_the_settings_are_deprecated_aliases(
+    module: str, old: str, new: str
+) -> None:
+    """The former names still import (the same class), warn where they are used, and are
+    not exported."""
+    namespace: dict = {}
+    with pytest.warns(DeprecationWarning, match=f"{old} is a deprecated alias of {new}") as rec:
+        exec(compile(f"from {module} import {old}", __file__, "exec"), namespace)
+    assert rec[0].filename == __file__  # points at the line that used the old name
+    mod = importlib.import_module(module)
+    assert namespace[old] is getattr(mod, new)
+    assert old not in mod.__all__ and new in mod.__all__
 
 
 #: The README's "API" section (granbayes.README_API in the report of this change); run as
@@ -123,7 +149,7 @@ import granbayes as gb
 
 exp = gb.load_experiment("my-lab")                   # robot, command settings, phi_c
 jumps = gb.load_jumps("my-lab", exp)                 # one validated row per jump
-config = gb.FitConfig(terms=("depth", "drag"), sampler=gb.SamplerSettings(n_ensembles=2))
+config = gb.FitSettings(terms=("depth", "drag"), sampler=gb.SamplerSettings(n_ensembles=2))
 result = gb.fit(exp, jumps, config, seed=1)          # until converged (result.converged)
 result.diagnostics()                                 # tau, R-hat, ESS per run
 result.save("posterior.nc")                          # the DataTree, as netCDF
@@ -444,14 +470,14 @@ def test_diagnose_progress_labels_name_law_and_run() -> None:
 
     seen = []
     bank = FitBank(
-        gb.Experiment(), pd.DataFrame(), gb.DiagnoseConfig(), None, 0, "", print,
+        gb.Experiment(), pd.DataFrame(), gb.DiagnoseSettings(), None, 0, "", print,
         lambda label, info: seen.append((label, info.step)),
     )  # fmt: skip
     info = ProgressInfo(100, 1000, 12.0, 1.02, 300.0, False)
     bank._progress(("depth", "drag"))("phi=0.602", info)
     bank._progress(("depth",), " (rerun 1)")("all", info)
     assert seen == [("depth + drag, phi=0.602", 100), ("depth (rerun 1), all", 100)]
-    assert FitBank(gb.Experiment(), pd.DataFrame(), gb.DiagnoseConfig(), None, 0, "",
+    assert FitBank(gb.Experiment(), pd.DataFrame(), gb.DiagnoseSettings(), None, 0, "",
                    print)._progress(("depth",)) is None  # fmt: skip
 
 

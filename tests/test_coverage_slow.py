@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from granbayes import Experiment, SolverOptions
-from granbayes.fitting import FitConfig, fit
+from granbayes import Experiment, SolverSettings
+from granbayes.fitting import FitSettings, fit
 from granbayes.sampler import SamplerSettings
 from granbayes.testing import synthetic_jumps
 
@@ -29,7 +29,7 @@ def replicate_table(seed: int) -> pd.DataFrame:
         phis=(PHI,),
         trials=TRIALS,
         label="tests/test_coverage_slow.py",
-        options=SolverOptions(),
+        options=SolverSettings(),
         decimals=None,
         settings_columns=True,
     )
@@ -51,7 +51,7 @@ def test_ninety_percent_intervals_cover_k() -> None:
     and convergence are reported in the failure message.
     """
     experiment = Experiment()
-    config = FitConfig(
+    config = FitSettings(
         terms=("depth",),
         sampler=SamplerSettings(
             n_walkers=10, n_ensembles=4, check_every=100, max_steps=1500, n_draws=100

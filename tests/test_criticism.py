@@ -23,7 +23,7 @@ from granbayes.cli import EXIT_UNCONVERGED, main
 from granbayes.criticism import (
     CELL_KEYS,
     Candidate,
-    DiagnoseConfig,
+    DiagnoseSettings,
     decide,
     describe_cell,
     diagnose,
@@ -85,7 +85,7 @@ def drag_case():
     import granbayes.criticism as gc
 
     table = _table({"c_d": 150.0})
-    config = DiagnoseConfig(candidates=("drag",), sampler=FAST, n_threads=1)
+    config = DiagnoseSettings(candidates=("drag",), sampler=FAST, n_threads=1)
     fits = {}
     real_fit = gc.fit
 
@@ -341,7 +341,7 @@ def _candidate(term: str, gain: float, se: float = 1.0, converged: bool = True) 
     )
 
 
-# DiagnoseConfig(): min_gain 4 nats, se_factor 2, strong_gain 10 nats
+# DiagnoseSettings(): min_gain 4 nats, se_factor 2, strong_gain 10 nats
 DECIDE_CASES = {
     "none": ([], 1, None),
     "clear gain, misfit": ([_candidate("drag", 6.0)], 1, "drag"),
@@ -382,19 +382,19 @@ def test_decide(case: str) -> None:
     """The rule: the best converged candidate, if its gain > min_gain and > se_factor SE,
     and the current law shows misfit or the gain > strong_gain."""
     candidates, n_misfit, expected = DECIDE_CASES[case]
-    chosen = decide(candidates, n_misfit, DiagnoseConfig())
+    chosen = decide(candidates, n_misfit, DiagnoseSettings())
     assert (None if chosen is None else chosen.term) == expected
     if chosen is not None:
         assert chosen in candidates
 
 
 def test_decide_uses_the_configured_thresholds() -> None:
-    """The thresholds come from the DiagnoseConfig."""
+    """The thresholds come from the DiagnoseSettings."""
     cand = [_candidate("drag", 6.0)]
-    assert decide(cand, 1, DiagnoseConfig()) is not None
-    assert decide(cand, 1, DiagnoseConfig(min_gain=7.0)) is None
-    assert decide(cand, 1, DiagnoseConfig(se_factor=6.5)) is None
-    assert decide(cand, 0, DiagnoseConfig(strong_gain=5.0)) is not None
+    assert decide(cand, 1, DiagnoseSettings()) is not None
+    assert decide(cand, 1, DiagnoseSettings(min_gain=7.0)) is None
+    assert decide(cand, 1, DiagnoseSettings(se_factor=6.5)) is None
+    assert decide(cand, 0, DiagnoseSettings(strong_gain=5.0)) is not None
 
 
 @pytest.mark.parametrize(
@@ -567,7 +567,7 @@ def test_the_rule_not_the_fits_decides(drag_case, monkeypatch: pytest.MonkeyPatc
     monkeypatch.setattr(gc, "fit", cached_fit)
     # screening off: with it, a prohibitive min_gain would screen the candidate out
     # before its fit (the screening test below covers that path)
-    cfg = DiagnoseConfig(
+    cfg = DiagnoseSettings(
         candidates=config.candidates, sampler=FAST, n_threads=1, min_gain=1e6, screen=False
     )
     d = diagnose(Experiment(), table, cfg, seed=2, log=_quiet)
@@ -609,7 +609,7 @@ def test_cli_diagnose_unconverged_exits_4(tmp_path: Path, capsys) -> None:
         assert "not converged: rerun with twice the step cap" in f["warnings"]
     (cand,) = rec["candidates"]
     assert cand["converged"] is False
-    rule = DiagnoseConfig()
+    rule = DiagnoseSettings()
     assert cand["elpd_diff_vs_current"] > max(rule.min_gain, 2 * cand["elpd_diff_vs_current_se"])
     assert rec["selected"]["added"] == []
     assert rec["verdict"] in VERDICTS and rec["verdict"] != "extended"
@@ -657,23 +657,23 @@ def test_screen_gain_is_large_for_the_hidden_term_and_small_for_another(drag_cas
     stiffening term (absent from the data) gains less than ``min_gain``. Gains are >= 0
     by construction (the search starts at the parent's best draw with the term off).
     """
-    from granbayes.fitting import FitConfig, screen
+    from granbayes.fitting import FitSettings, screen
 
     table, _, d, _ = drag_case
     parent = d.baseline.datatree
-    drag = screen(Experiment(), table, FitConfig(terms=("depth", "drag")), parent, seed=1)
+    drag = screen(Experiment(), table, FitSettings(terms=("depth", "drag")), parent, seed=1)
     (cand,) = [c for c in d.candidates if c.term == "drag"]
-    assert drag > DiagnoseConfig().min_gain
+    assert drag > DiagnoseSettings().min_gain
     assert drag >= cand.gain - 2.0 * cand.gain_se
-    stiff = screen(Experiment(), table, FitConfig(terms=("depth", "stiffening")), parent, seed=1)
-    assert 0.0 <= stiff < DiagnoseConfig().min_gain
+    stiff = screen(Experiment(), table, FitSettings(terms=("depth", "stiffening")), parent, seed=1)
+    assert 0.0 <= stiff < DiagnoseSettings().min_gain
 
 
 def test_a_screened_out_candidate_is_listed_not_fitted(tmp_path: Path) -> None:
     """Screening on: an absent term is screened out (no fit, null ELPD in diagnosis.json,
     "screened out" in the report); the hidden drag is fitted and added as before."""
     table = _table({"c_d": 150.0})
-    cfg = DiagnoseConfig(candidates=("drag", "stiffening"), sampler=FAST, n_threads=1)
+    cfg = DiagnoseSettings(candidates=("drag", "stiffening"), sampler=FAST, n_threads=1)
     d = diagnose(Experiment(), table, cfg, seed=2, log=_quiet)
     rec = _strict_json(json.dumps(d.to_json()))
     by_term = {c["term"]: c for c in rec["candidates"] if c["round"] == 1}

@@ -30,18 +30,18 @@ import granbayes.sampler as gsampler
 from granbayes import (
     COMMAND_NAMES,
     Experiment,
-    SolverOptions,
+    SolverSettings,
     load_experiment,
     load_jumps,
     simulate,
 )
 from granbayes.cli import EXIT_INPUT, EXIT_OK, main
-from granbayes.criticism import DiagnoseConfig
+from granbayes.criticism import DiagnoseSettings
 from granbayes.datatree import read_datatree, write_datatree
 from granbayes.fitting import (
     CommandComparison,
-    FitConfig,
     FitResult,
+    FitSettings,
     compare_commands,
     data_hash,
     fit,
@@ -129,7 +129,7 @@ def write_synthetic_experiment(
         commands=commands,
         trials=trials,
         label="tests/test_fit.py",
-        options=SolverOptions(),
+        options=SolverSettings(),
     )
     return write_experiment(folder, jumps, Experiment(phi_c=PHI_C))
 
@@ -238,7 +238,7 @@ def two_phis(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def recovery_fit(one_phi: Path) -> FitResult:
     """Depth-only fit of the one-phi synthetic data with the small settings (seed 4)."""
     experiment, table = load_folder(one_phi)
-    config = FitConfig(terms=("depth",), sampler=SMALL, n_threads=1)
+    config = FitSettings(terms=("depth",), sampler=SMALL, n_threads=1)
     return fit(experiment, table, config, seed=4, data_source=str(one_phi))
 
 
@@ -247,7 +247,7 @@ def tiny_fits(two_phis: Path) -> tuple[FitResult, FitResult, list[tuple[str, Pro
     """Two capped fits of the two-phi data with the same seed (11); the first one reports
     its progress (the calls are returned third)."""
     experiment, table = load_folder(two_phis)
-    config = FitConfig(terms=("depth",), sampler=TINY, n_threads=1)
+    config = FitSettings(terms=("depth",), sampler=TINY, n_threads=1)
     calls: list[tuple[str, ProgressInfo]] = []
     a = fit(
         experiment, table, config, seed=11, progress=lambda label, info: calls.append((label, info))
@@ -514,7 +514,7 @@ def test_warm_start_from_a_nested_parent(
     prior width (``find_starts`` adds ``1e-3 x width x |N(0, 1)|``), with the new drag
     coefficient at its "off" value c_d = 0. The data are depth-only, so the extension
     contains the truth and its ELPD must not fall below the parent's by more than
-    ``DiagnoseConfig.nested_tolerance`` + 2 SE (the criterion ``diagnose`` uses to detect
+    ``DiagnoseSettings.nested_tolerance`` + 2 SE (the criterion ``diagnose`` uses to detect
     a sampling failure), even with the sampler capped at 300 steps. The extension's
     ``log_prior`` is the density of its reported values, c_d's uniform prior included
     (c_d is sampled in sqrt(c_d), so the Jacobian matters).
@@ -528,7 +528,7 @@ def test_warm_start_from_a_nested_parent(
         return original(log_prob_fn, initial, *args, **kwargs)
 
     monkeypatch.setattr(gfit, "run_ensembles", spy)
-    config = FitConfig(terms=("depth", "drag"), sampler=WARM, n_threads=1, n_prior_draws=0)
+    config = FitSettings(terms=("depth", "drag"), sampler=WARM, n_threads=1, n_prior_draws=0)
     child = fit(experiment, table, config, seed=5, warm_start=recovery_fit.datatree)
     (initial,) = starts
     model = child.parts[0].model
@@ -558,7 +558,7 @@ def test_warm_start_from_a_nested_parent(
     # the extension ends close to (here: not far below) its parent
     parent_loo, child_loo = gdt.loo(recovery_fit.datatree), gdt.loo(child.datatree)
     diff, se = gdt.elpd_difference(child_loo["elpd_i"], parent_loo["elpd_i"])
-    assert diff > -(DiagnoseConfig().nested_tolerance + 2.0 * se), (diff, se)
+    assert diff > -(DiagnoseSettings().nested_tolerance + 2.0 * se), (diff, se)
 
 
 # ----------------------------------------------------------------------------------------
@@ -618,7 +618,7 @@ def test_library_resume_across_volume_fractions(
     bit for bit, in every group.
     """
     experiment, table = load_folder(two_phis)
-    config = FitConfig(terms=("depth",), sampler=TINY, n_threads=1)
+    config = FitSettings(terms=("depth",), sampler=TINY, n_threads=1)
     backend = tmp_path / "chains"
     with monkeypatch.context() as m:
         interrupt_sampling_after(m, 200, run=1)
@@ -640,7 +640,7 @@ def test_resume_refuses_a_checkpoint_made_for_other_data(two_phis: Path, tmp_pat
     """
     experiment, table = load_folder(two_phis)
     table = table[table["phi"] == 0.602]
-    config = FitConfig(terms=("depth",), sampler=TINY, n_threads=1, n_prior_draws=0)
+    config = FitSettings(terms=("depth",), sampler=TINY, n_threads=1, n_prior_draws=0)
     backend = tmp_path / "chains"
     fit(experiment, table, config, seed=11, backend=backend)
     changed = table.assign(height_mm=table["height_mm"] + 1.0)
@@ -730,7 +730,7 @@ def test_volume_fraction_with_one_jump() -> None:
     sampler = SamplerSettings(
         n_walkers=8, n_ensembles=2, check_every=100, max_steps=100, n_draws=20
     )
-    config = FitConfig(sampler=sampler, n_threads=1, n_prior_draws=10)
+    config = FitSettings(sampler=sampler, n_threads=1, n_prior_draws=10)
     res = fit(Experiment(), table, config, seed=0)
     assert res.datatree.log_likelihood["height_mm"].shape == (16, 20, 3)
     assert np.all(np.isfinite(res.datatree.log_likelihood["height_mm"].values))

@@ -40,7 +40,7 @@ import pytest
 from granbayes import CommandSettings, Experiment, Robot
 from granbayes import datatree as gdt
 from granbayes.calibration import OUT_OF_LIBRARY, make_case
-from granbayes.criticism import DiagnoseConfig, diagnose
+from granbayes.criticism import DiagnoseSettings, diagnose
 from granbayes.forces import terms_of
 from granbayes.testing import synthetic_jumps
 
@@ -56,7 +56,7 @@ EFFECTS = {
     "compaction": {"c_comp": 0.6},
     "unloading": {"r_unload": 3.0},
 }
-CONFIG = DiagnoseConfig()
+CONFIG = DiagnoseSettings()
 
 
 def _truth(term: str | None):

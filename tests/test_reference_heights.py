@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from granbayes import SolverOptions, load_batch_table, simulate_table
+from granbayes import SolverSettings, load_batch_table, simulate_table
 from granbayes.forces import PARAMETER_NAMES
 
 REFERENCE_HEIGHTS = Path(__file__).resolve().parent / "data" / "reference-heights.csv"
@@ -74,7 +74,7 @@ def simulated_default(reference: pd.DataFrame) -> pd.DataFrame:
 @pytest.fixture(scope="module")
 def simulated_converged(reference: pd.DataFrame) -> pd.DataFrame:
     """The reference table simulated with converged solver settings."""
-    return simulate_table(reference.drop(columns="height_mm"), options=SolverOptions.converged())
+    return simulate_table(reference.drop(columns="height_mm"), options=SolverSettings.converged())
 
 
 def _check_row(
@@ -96,9 +96,9 @@ def _check_row(
 def test_default_solver_reproduces_reference_within_contract(
     index: int, reference: pd.DataFrame, simulated_default: pd.DataFrame
 ) -> None:
-    """Default SolverOptions reproduce each converged reference height within 0.05 mm.
+    """Default SolverSettings reproduce each converged reference height within 0.05 mm.
 
-    This is the project contract for the default settings (``SolverOptions`` docstring),
+    This is the project contract for the default settings (``SolverSettings`` docstring),
     checked row by row through the batch-table path (``load_batch_table`` +
     ``simulate_table``) that the CLI uses.
     """
@@ -109,7 +109,7 @@ def test_default_solver_reproduces_reference_within_contract(
 def test_converged_solver_reproduces_reference(
     index: int, reference: pd.DataFrame, simulated_converged: pd.DataFrame
 ) -> None:
-    """``SolverOptions.converged()`` reproduces each reference height within 0.005 mm.
+    """``SolverSettings.converged()`` reproduces each reference height within 0.005 mm.
 
     Ten times tighter than the default contract: a wrong term, sign or event would shift a
     height by far more, while the reference's own error is below 0.003 mm.

@@ -27,7 +27,7 @@ from arviz_stats.base import array_stats
 
 from granbayes import load_experiment, load_jumps
 from granbayes._provenance import environment, reproducibility_key
-from granbayes.fitting import FitConfig, fit
+from granbayes.fitting import FitSettings, fit
 from granbayes.sampler import SamplerSettings
 from granbayes.synthetic import REFERENCE_DATA
 
@@ -50,7 +50,7 @@ def small_fit() -> dict:
     sampler = SamplerSettings(
         n_walkers=8, n_ensembles=2, max_steps=1500, check_every=100, min_ess=200, n_draws=100
     )
-    config = FitConfig(terms=("depth",), sampler=sampler, n_prior_draws=0)
+    config = FitSettings(terms=("depth",), sampler=sampler, n_prior_draws=0)
     result = fit(experiment, table, config, seed=SEED, data_source="reference subset")
     post = result.datatree.posterior.to_dataset().squeeze("phi", drop=True)
     digest = hashlib.sha256()

@@ -26,14 +26,14 @@ from distributed import Client
 
 from granbayes import load_experiment, load_jumps
 from granbayes.cli import EXIT_INPUT, EXIT_OK, main
-from granbayes.fitting import FitConfig
+from granbayes.fitting import FitSettings
 from granbayes.sampler import SamplerSettings
 from granbayes.sbc import run_sbc, summarize_ranks
 
 BIN = Path(sys.executable).parent
 #: Capped fits for machinery tests (not converged; not a calibration study).
 FAST = ["--walkers", "8", "--max-steps", "100", "--rank-draws", "19", "--quiet"]
-FAST_CONFIG = FitConfig(
+FAST_CONFIG = FitSettings(
     terms=("depth", "drag"),
     sampler=SamplerSettings(n_walkers=8, check_every=100, max_steps=100, n_draws=125),
 )

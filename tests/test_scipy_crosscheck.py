@@ -18,7 +18,7 @@ import granbayes
 import granbayes.testing
 from granbayes.experiment import COMMAND_NAMES, Experiment
 from granbayes.forces import PARAMETER_NAMES, PARAMETERS, typical_ranges
-from granbayes.simulator import SolverOptions, Status
+from granbayes.simulator import SolverSettings, Status
 from granbayes.testing import simulate_height_scipy
 
 #: Required agreement of ``granbayes.simulate`` (default settings) with solve_ivp [mm].
@@ -76,7 +76,7 @@ def _heights(
     experiment = Experiment().replace(**changes)
     default = granbayes.simulate(command, phi, params, experiment=experiment)
     converged = granbayes.simulate(
-        command, phi, params, experiment=experiment, options=SolverOptions.converged()
+        command, phi, params, experiment=experiment, options=SolverSettings.converged()
     )
     assert default.ok.all() and converged.ok.all()
     reference = simulate_height_scipy(command, phi, params, experiment)

@@ -44,7 +44,7 @@ from granbayes import (
     ForceLaw,
     Robot,
     Segment,
-    SolverOptions,
+    SolverSettings,
     Status,
     Trajectory,
     _kernel,
@@ -60,7 +60,7 @@ from granbayes.testing import simulate_height_scipy
 
 G = 9.81
 PHI = 0.612
-CONVERGED = SolverOptions.converged()
+CONVERGED = SolverSettings.converged()
 #: Cone geometry of physics-model.md section 3.
 CONE_TAN = math.tan(math.pi / 3.0)
 CONE_MU = 2.0
@@ -83,7 +83,7 @@ def height(
     command: str | CommandProgram,
     params: Mapping[str, float],
     *,
-    options: SolverOptions | None = None,
+    options: SolverSettings | None = None,
     experiment: Experiment | None = None,
     phi: float = PHI,
 ) -> float:
@@ -93,20 +93,20 @@ def height(
     return float(res.height_mm[0])
 
 
-def fixed_step(h: float) -> SolverOptions:
+def fixed_step(h: float) -> SolverSettings:
     """Options that make every step exactly ``h`` (except where clipped by an event).
 
     The linear regimes' closed form is off: with it their steps are exact and the error
     left (of the short advancing phases) sits at the converged floor.
     """
-    return SolverOptions(
+    return SolverSettings(
         rtol=1e6, atol_position=1e6, atol_velocity=1e6, max_step=h, closed_form=False
     )
 
 
-def scaled_tolerances(rtol: float) -> SolverOptions:
+def scaled_tolerances(rtol: float) -> SolverSettings:
     """Options with the default ratios atol_position = rtol / 100 m, atol_velocity = rtol."""
-    return SolverOptions(rtol=rtol, atol_position=rtol * 1e-2, atol_velocity=rtol)
+    return SolverSettings(rtol=rtol, atol_position=rtol * 1e-2, atol_velocity=rtol)
 
 
 def idle_program(start_state: str = "touching", duration: float = 0.8) -> CommandProgram:
@@ -121,7 +121,7 @@ def trajectory(
     params: Mapping[str, float],
     *,
     experiment: Experiment | None = None,
-    options: SolverOptions | None = None,
+    options: SolverSettings | None = None,
     phi: float = PHI,
 ) -> Trajectory:
     """A successful trajectory whose record covers the whole height window.
@@ -133,7 +133,7 @@ def trajectory(
     assert traj.status == Status.OK, traj.status.label
     t = traj.data["t_s"].to_numpy()
     xf = traj.data["x_foot_mm"].to_numpy()
-    t_close = traj.program.t_end + (options or SolverOptions()).window_after
+    t_close = traj.program.t_end + (options or SolverSettings()).window_after
     touchdown = len(t) > 1 and t[-2] >= traj.program.t_end and xf[-2] >= 0.0 > xf[-1]
     assert touchdown or abs(t[-1] - t_close) < 1e-12, (
         f"record ends at t = {t[-1]:.6f} s, neither a touchdown nor the window end "
@@ -411,7 +411,7 @@ def test_adaptive_height_error_meets_contract_and_shrinks_with_rtol(
 def test_default_tolerances_meet_contract_on_random_realistic_jumps(command: str) -> None:
     """Over 400 random realistic parameter sets, default heights are within 0.05 mm of converged.
 
-    This is the ``SolverOptions`` contract over the ranges of forces.py. Observed worst case
+    This is the ``SolverSettings`` contract over the ranges of forces.py. Observed worst case
     0.035 mm (delayed_stutter_preload; the other commands stay below 0.004 mm). Rare
     violations exist (about 1 in 1000 delayed_stutter_preload jumps, up to 0.085 mm): see
     ``test_default_tolerances_catch_a_brief_glancing_contact``.
@@ -994,7 +994,7 @@ def test_bad_rows_give_bad_input_status_and_nan_without_raising() -> None:
 
 def test_step_budget_exhaustion_gives_step_limit_status() -> None:
     """max_steps = 20 (a jump needs ~50) gives STEP_LIMIT and NaN, in batches and trajectories."""
-    options = SolverOptions(max_steps=20)
+    options = SolverSettings(max_steps=20)
     res = simulate("single", [0.6, 0.6], {"k": [3000.0, 5000.0]}, options=options)
     assert np.all(res.status == Status.STEP_LIMIT)
     assert np.all(np.isnan(res.height_mm))
@@ -1200,7 +1200,7 @@ def test_zero_hold_delayed_commands_equal_the_stutter() -> None:
     params = {"k": 3000.0, "c_d": 30.0, "kappa": 0.5, "r_unload": 20.0}
     zero_delay = Experiment(command=CommandSettings(delay_ms=0.0))
     zero_settle = Experiment(command=CommandSettings(settle_periods=0.0))
-    for options in (SolverOptions(), CONVERGED):
+    for options in (SolverSettings(), CONVERGED):
         stutter = height("stutter", params, options=options)
         assert height(
             "delayed_stutter", params, options=options, experiment=zero_delay
