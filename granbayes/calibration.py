@@ -220,7 +220,7 @@ def diagnose_case(
     t0 = time.perf_counter()
     d = diagnose(case.experiment, case.table, config, seed=diag_seed, log=lambda *a, **k: None)
     rec = d.to_json()
-    misfit = pd.DataFrame(rec["misfit"])
+    misfit = d.residuals_before
     round1 = [c for c in rec["candidates"] if c["round"] == 1]
     sel = rec["selected"]
     return [
@@ -247,6 +247,7 @@ def diagnose_case(
                 max((abs(c["z_after"]) for c in sel["per_cell"]), default=0.0)
             ),
             "z_threshold": rec["rule"]["z_threshold"],
+            "family_alpha": rec["rule"]["family_alpha"],
             "all_converged": rec["all_converged"],
             "n_fits": len(rec["fits"]),
             "n_reruns": int(sum(f["reruns"] for f in rec["fits"])),
@@ -373,7 +374,8 @@ def rederive_verdicts(
             thr = r.z_threshold
         else:
             q = family_alpha / (2.0 * r.n_cells)
-            thr = stats.t.isf(q, r.dof_min) if r.dof_min > 0 else stats.norm.isf(q)
+            dof = _dof(r)
+            thr = stats.t.isf(q, dof) if dof > 0 else stats.norm.isf(q)
         misfit = r.baseline_max_abs_z > thr
         cands = [
             c
@@ -388,6 +390,22 @@ def rederive_verdicts(
         clear = gain > min_gain and gain > se_factor * se
         out.append(best["term"] if clear and (misfit or gain > strong_gain) else "")
     return pd.Series(out, index=results.index)
+
+
+def _dof(row) -> float:
+    """Pooled degrees of freedom of a case's scatter; rows that lack it (recorded before it
+    was) get it back from their recorded threshold, ``t.isf(alpha / (2 n), dof)``."""
+    from scipy import optimize, stats
+
+    dof = getattr(row, "dof_min", None)
+    if dof is not None and np.isfinite(dof):
+        return float(dof)
+    alpha = getattr(row, "family_alpha", None)
+    alpha = 0.05 if alpha is None or not np.isfinite(alpha) else float(alpha)
+    q = alpha / (2.0 * row.n_cells)
+    if row.z_threshold <= stats.norm.isf(q) * (1 + 1e-9):
+        return 0.0
+    return float(optimize.brentq(lambda v: stats.t.isf(q, v) - row.z_threshold, 0.5, 1e6))
 
 
 def summarize(results: pd.DataFrame) -> pd.DataFrame:
