@@ -149,7 +149,17 @@ class DiagnoseSettings:
     n_threads: int | None = None
 
     def candidate_terms(self, current: Sequence[str]) -> list[str]:
-        """Terms that may still be added to ``current``."""
+        """Terms that may still be added to ``current``.
+
+        Parameters
+        ----------
+        current : sequence of str
+            Terms of the current law.
+
+        Returns
+        -------
+        list of str
+        """
         pool = self.candidates if self.candidates is not None else tuple(TERMS)
         return [t for t in terms_of(pool) if t not in current and not TERMS[t].required]
 
@@ -335,6 +345,18 @@ def misfit_threshold(residuals: pd.DataFrame, family_alpha: float) -> float:
     pooled scatter's degrees of freedom (the smallest over volume fractions):
     ``t.isf(family_alpha / (2 n), dof)``; the normal quantile without repeats. Fitting
     shrinks residuals, so under a correct law the realised rate is at most about this.
+
+    Parameters
+    ----------
+    residuals : pandas.DataFrame
+        The cells (:func:`residual_table`; column ``dof``).
+    family_alpha : float
+        Family-wise false-alarm rate.
+
+    Returns
+    -------
+    float
+        The |z| threshold.
     """
     n = max(len(residuals), 1)
     dof = float(residuals["dof"].min()) if len(residuals) else 0.0
@@ -348,6 +370,15 @@ def describe_cell(row: Mapping) -> str:
 
     The settings that distinguish cells are named: frequency and amplitude, the delay of a
     delayed stutter, the settle periods of a delayed stutter preload.
+
+    Parameters
+    ----------
+    row : mapping
+        A row of :func:`residual_table`.
+
+    Returns
+    -------
+    str
     """
     verb = "under-predicted" if row["mean_residual_mm"] > 0 else "over-predicted"
     setting = []
@@ -367,7 +398,17 @@ def describe_cell(row: Mapping) -> str:
 
 
 def rmse_mm(dt: xr.DataTree | FitResult | SavedFit) -> float:
-    """Root-mean-square of observed minus posterior-mean simulated height [mm]."""
+    """Root-mean-square of observed minus posterior-mean simulated height [mm].
+
+    Parameters
+    ----------
+    dt : xarray.DataTree or FitResult or SavedFit
+        A fit.
+
+    Returns
+    -------
+    float
+    """
     dt = _tree(dt)
     y = dt["observed_data"]["height_mm"].values
     sim = dt["posterior_predictive"]["height_sim_mm"].values.reshape(-1, len(y)).mean(axis=0)
@@ -485,6 +526,17 @@ class FitBank:
         A fit that did not converge is rerun once with twice the step cap; an extension
         whose ELPD lies below its parent's by more than ``nested_tolerance`` + 2 SE is
         rerun once with another seed. Both are recorded.
+
+        Parameters
+        ----------
+        terms : sequence of str
+            The law.
+        parent : sequence of str, optional
+            A fitted nested law to warm-start from.
+
+        Returns
+        -------
+        FitResult
         """
         key = terms_of(terms)
         if key in self.fits:
@@ -526,7 +578,20 @@ class FitBank:
         return result
 
     def screen(self, terms: Sequence[str], parent: Sequence[str]) -> float:
-        """Largest log-likelihood gain [nats] of law ``terms`` over its fitted ``parent``."""
+        """Largest log-likelihood gain [nats] of law ``terms`` over its fitted ``parent``.
+
+        Parameters
+        ----------
+        terms : sequence of str
+            The extended law.
+        parent : sequence of str
+            The fitted law it extends.
+
+        Returns
+        -------
+        float
+            See :func:`granbayes.fitting.screen`.
+        """
         key = terms_of(terms)
         if key not in self.screens:
             with self._timed("screening"):
@@ -541,7 +606,17 @@ class FitBank:
         return self.screens[key]
 
     def converged(self, key: tuple[str, ...]) -> bool:
-        """Whether the (final) fit of law ``key`` converged."""
+        """Whether the (final) fit of law ``key`` converged.
+
+        Parameters
+        ----------
+        key : tuple of str
+            The law's terms (canonical order).
+
+        Returns
+        -------
+        bool
+        """
         return self.records[key].converged
 
     # held-out predictions (fallbacks for bad Pareto k)
@@ -569,6 +644,18 @@ class FitBank:
         """Exact leave-one-out ELPD of the given jumps: one warm-started refit per jump.
 
         Only the jump's own volume fraction is refitted (``per_phi`` fits are independent).
+
+        Parameters
+        ----------
+        key : tuple of str
+            The law's terms (canonical order).
+        points : sequence of int
+            Rows of the jumps table to leave out, one at a time.
+
+        Returns
+        -------
+        dict of int to float
+            Log predictive density [nats] of each left-out jump.
         """
         out = {}
         t = self.table
@@ -580,7 +667,18 @@ class FitBank:
         return out
 
     def kfold_elpd_i(self, key: tuple[str, ...]) -> np.ndarray:
-        """Pointwise K-fold ELPD: each jump predicted by a fit without its fold (stratified)."""
+        """Pointwise K-fold ELPD: each jump predicted by a fit without its fold (stratified).
+
+        Parameters
+        ----------
+        key : tuple of str
+            The law's terms (canonical order).
+
+        Returns
+        -------
+        ndarray, shape (jump,)
+            Log predictive density [nats] of every jump.
+        """
         t, k = self.table, self.config.kfold
         rng = np.random.default_rng(self.seed)
         folds = np.empty(len(t), dtype=int)
@@ -760,7 +858,25 @@ def verdict(added: Sequence[str], baseline_misfit: int, residual_misfit: int) ->
 # ----------------------------------------------------------------------------------------
 @dataclass
 class Diagnosis:
-    """Result of :func:`diagnose` (``to_json`` gives ``diagnosis.json``)."""
+    """Result of :func:`diagnose` (``to_json`` gives ``diagnosis.json``).
+
+    Attributes
+    ----------
+    baseline, selected : FitResult
+        The fits of the baseline law and of the selected law.
+    residuals_before, residuals_after : pandas.DataFrame
+        Their cells (:func:`residual_table`).
+    candidates : list of Candidate
+        Every candidate of every round, screened-out ones included.
+    added : list of str
+        Terms the rule added, in order.
+    record : dict
+        The ``diagnosis.json`` document.
+    fits : dict of tuple of str to FitResult
+        Every fit made, by law.
+    timing_s : dict of str to float
+        Wall time [s] per kind of work (not saved).
+    """
 
     baseline: FitResult
     selected: FitResult

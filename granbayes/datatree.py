@@ -297,13 +297,33 @@ def elpd_difference(elpd_i_a: np.ndarray, elpd_i_b: np.ndarray) -> tuple[float, 
     """ELPD difference ``a - b`` and its standard error from pointwise values.
 
     ``se = sqrt(n var(elpd_i_a - elpd_i_b))`` (Vehtari, Gelman & Gabry 2017, eq. 24).
+
+    Parameters
+    ----------
+    elpd_i_a, elpd_i_b : ndarray
+        Pointwise ELPD [nats] of two models on the same jumps.
+
+    Returns
+    -------
+    tuple of float
+        The difference and its standard error [nats].
     """
     d = np.asarray(elpd_i_a, dtype=float) - np.asarray(elpd_i_b, dtype=float)
     return float(np.sum(d)), float(np.sqrt(d.size * np.var(d)))
 
 
 def compare(models: Mapping[str, xr.DataTree]) -> pd.DataFrame:
-    """PSIS-LOO comparison (``arviz.compare``): ``elpd``, ``elpd_diff``, ``dse``, ``weight``."""
+    """PSIS-LOO comparison (``arviz.compare``): ``elpd``, ``elpd_diff``, ``dse``, ``weight``.
+
+    Parameters
+    ----------
+    models : mapping of str to xarray.DataTree
+        Fits of the same jumps, by name.
+
+    Returns
+    -------
+    pandas.DataFrame
+    """
     with warnings.catch_warnings():
         _ignore_pareto_k_warning()  # flagged per model in the ``warning`` column
         return az.compare(dict(models), var_name="height_mm")
@@ -313,6 +333,17 @@ def plot_diagnostics(
     dt: xr.DataTree, var_names: Sequence[str], out_dir: Path, stem: str = ""
 ) -> list[Path]:
     """Trace and rank plots (arviz-plots, matplotlib backend) written as PNG files.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit.
+    var_names : sequence of str
+        Parameters to plot.
+    out_dir : Path
+        Folder of the PNG files.
+    stem : str
+        Suffix of the file names.
 
     Returns
     -------
@@ -339,6 +370,11 @@ def loo_pit(dt: xr.DataTree) -> np.ndarray:
     a calibrated predictive distribution. Needs the ``posterior_predictive``,
     ``log_likelihood`` and ``observed_data`` groups (variable ``height_mm``).
 
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit.
+
     Returns
     -------
     ndarray, shape (jump,)
@@ -362,7 +398,17 @@ def _pit_tree(dt: xr.DataTree) -> xr.DataTree:
 
 
 def pit_uniformity(pit: np.ndarray) -> float:
-    """p-value of ArviZ's uniformity test (``pot_c``, arviz-stats) of PIT values in (0, 1)."""
+    """p-value of ArviZ's uniformity test (``pot_c``, arviz-stats) of PIT values in (0, 1).
+
+    Parameters
+    ----------
+    pit : ndarray
+        PIT values.
+
+    Returns
+    -------
+    float
+    """
     return float(sbc_uniformity({"pit": np.asarray(pit, dtype=float)[:, None]}, [0.0])["pit"][0])
 
 
@@ -632,10 +678,28 @@ def plot_sbc_ecdf(
 
 
 def write_datatree(dt: xr.DataTree, path: Path) -> None:
-    """Write a DataTree to netCDF (h5netcdf engine)."""
+    """Write a DataTree to netCDF (h5netcdf engine).
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        The tree.
+    path : Path
+        The netCDF file.
+    """
     dt.to_netcdf(path, engine="h5netcdf")
 
 
 def read_datatree(path: Path) -> xr.DataTree:
-    """Read a DataTree written by :func:`write_datatree`."""
+    """Read a DataTree written by :func:`write_datatree`.
+
+    Parameters
+    ----------
+    path : Path
+        The netCDF file.
+
+    Returns
+    -------
+    xarray.DataTree
+    """
     return xr.open_datatree(path, engine="h5netcdf").load()

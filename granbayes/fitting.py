@@ -141,7 +141,19 @@ class FitSettings:
 
 @dataclass
 class FitPart:
-    """One ensemble run: a model and its samples."""
+    """One sampler run of a fit: a model and its samples.
+
+    Attributes
+    ----------
+    label : str
+        Run label (``"phi=0.602"`` or ``"all"``).
+    model : JumpModel
+        Its log-posterior.
+    run : SamplerRun
+        The pooled ensembles.
+    jumps : ndarray of int
+        Rows of the jumps table the run fits.
+    """
 
     label: str
     model: JumpModel
@@ -609,7 +621,20 @@ def _replicate(part: FitPart, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def data_hash(experiment: Experiment, table: pd.DataFrame) -> str:
-    """SHA-256 of the experiment settings and the jumps table (provenance)."""
+    """SHA-256 of the experiment settings and the jumps table (provenance).
+
+    Parameters
+    ----------
+    experiment : Experiment
+        Robot, command defaults and ``phi_c``.
+    table : pandas.DataFrame
+        The jumps.
+
+    Returns
+    -------
+    str
+        Hexadecimal digest.
+    """
     h = hashlib.sha256()
     h.update(repr((experiment.robot, experiment.command, experiment.phi_c)).encode())
     h.update(table.to_csv(index=False).encode())

@@ -93,7 +93,17 @@ class Observations:
         return cls(table, configs, np.asarray(config_of_obs, dtype=np.int64), programs)
 
     def subset(self, mask: np.ndarray | pd.Series) -> Observations:
-        """Observations restricted to the jumps where ``mask`` is true."""
+        """Observations restricted to the jumps where ``mask`` is true.
+
+        Parameters
+        ----------
+        mask : ndarray or pandas.Series of bool
+            One entry per jump.
+
+        Returns
+        -------
+        Observations
+        """
         return Observations.from_table(self.table[np.asarray(mask)])
 
     @functools.cached_property
@@ -254,7 +264,18 @@ class JumpModel:
         return self._phis
 
     def log_prior(self, u: np.ndarray) -> np.ndarray:
-        """Log prior density of walker positions ``u`` (shape (n, ndim)) [nats]."""
+        """Log prior density of walker positions ``u`` (shape (n, ndim)) [nats].
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Positions in sampling coordinates.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            ``-inf`` outside the prior's support.
+        """
         u = np.atleast_2d(u)
         lp = np.zeros(u.shape[0])
         for j, c in enumerate(self._coords):
@@ -275,6 +296,15 @@ class JumpModel:
         (``log p_u(u) - log |d value / d u|``), the one ArviZ's prior-sensitivity analysis
         power-scales. In quadratic mode the coordinates are polynomial coefficients and
         the two coincide.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Positions in sampling coordinates.
+
+        Returns
+        -------
+        ndarray, shape (n,)
         """
         u = np.atleast_2d(u)
         lp = self.log_prior(u)
@@ -415,7 +445,18 @@ class JumpModel:
         return self._sigma_at(u, self._phis)[:, index]
 
     def log_density(self, y_mm: np.ndarray, mean_mm: np.ndarray, sigma_mm: np.ndarray):
-        """Log density of heights ``y_mm`` given predictive mean and scatter [mm]."""
+        """Log density of heights ``y_mm`` given predictive mean and scatter [mm].
+
+        Parameters
+        ----------
+        y_mm, mean_mm, sigma_mm : ndarray
+            Heights, predictive means and scatters [mm] (broadcast).
+
+        Returns
+        -------
+        ndarray
+            Log density [nats, per mm].
+        """
         r = (y_mm - mean_mm) / sigma_mm
         if self.noise == "normal":
             return -0.5 * r * r - np.log(sigma_mm) - 0.5 * math.log(2.0 * math.pi)
@@ -541,7 +582,19 @@ class JumpModel:
         return lp, loglik
 
     def sample_prior(self, rng: np.random.Generator, size: int) -> np.ndarray:
-        """Draw walker positions from the prior (quadratic mode: bound-respecting)."""
+        """Draw walker positions from the prior (quadratic mode: bound-respecting).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            Source of randomness.
+        size : int
+            Number of positions.
+
+        Returns
+        -------
+        ndarray, shape (size, ndim)
+        """
         out = np.empty((0, self.ndim))
         for _ in range(200):
             draw = np.column_stack([c.prior.sample_u(rng, 4 * size) for c in self._coords])

@@ -122,7 +122,17 @@ class SamplerSettings:
     moves: Literal["de", "stretch"] = "de"
 
     def walkers_for(self, ndim: int) -> int:
-        """Walkers per ensemble for a problem of dimension ``ndim`` (even, >= 2 ndim)."""
+        """Walkers per ensemble for a problem of dimension ``ndim`` (even, >= 2 ndim).
+
+        Parameters
+        ----------
+        ndim : int
+            Dimension of the problem.
+
+        Returns
+        -------
+        int
+        """
         n = max(self.n_walkers, 2 * ndim)
         return n + (n % 2)
 
@@ -400,7 +410,17 @@ def save_checkpoint(
 
 @dataclass(frozen=True)
 class Checkpoint:
-    """A run restored from :func:`save_checkpoint`."""
+    """A run restored from :func:`save_checkpoint`.
+
+    Attributes
+    ----------
+    backends : list of (emcee.backends.Backend, int)
+        Every ensemble's chain and the global step at which it began.
+    fingerprint : str
+        Identity of the problem the checkpoint was written for.
+    notes : list of str
+        The run's warnings so far.
+    """
 
     backends: list[tuple[emcee.backends.Backend, int]]
     fingerprint: str
@@ -408,7 +428,17 @@ class Checkpoint:
 
 
 def load_checkpoint(path: Path) -> Checkpoint | None:
-    """The ensembles stored in a checkpoint file (``None`` if there is none)."""
+    """The ensembles stored in a checkpoint file (``None`` if there is none).
+
+    Parameters
+    ----------
+    path : Path
+        The checkpoint file.
+
+    Returns
+    -------
+    Checkpoint or None
+    """
     path = Path(path)
     if not path.exists():
         return None

@@ -97,7 +97,22 @@ def make_jumps(
 
 
 def write_experiment(folder: Path, jumps: pd.DataFrame, experiment: Experiment) -> Path:
-    """Write an experiment folder (``experiment.toml`` + ``jumps.csv``) for ``jumps``."""
+    """Write an experiment folder (``experiment.toml`` + ``jumps.csv``) for ``jumps``.
+
+    Parameters
+    ----------
+    folder : Path
+        Folder (created).
+    jumps : pandas.DataFrame
+        The jumps (``true_height_mm`` is dropped).
+    experiment : Experiment
+        Robot and command defaults.
+
+    Returns
+    -------
+    Path
+        The folder.
+    """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     r, c = experiment.robot, experiment.command
