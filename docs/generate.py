@@ -89,10 +89,10 @@ def cli_reference() -> str:
 
 def priors_table() -> str:
     """Markdown table of the default prior of every parameter, with its reason."""
-    from granbayes.forces import PARAMETERS, parameter_term
+    from granbayes.forces import parameter_term, registered_parameters
     from granbayes.priors import default_priors
 
-    described = {p.name: p.description for p in PARAMETERS}
+    described = {p.name: p.description for p in registered_parameters()}
     lines = [
         "| parameter | term | meaning | unit | default prior | lower | upper | why |",
         "|---|---|---|---|---|---|---|---|",

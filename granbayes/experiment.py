@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError
+from .forces import PARAMETER_NAMES, registered_parameters
 
 __all__ = [
     "BATCH_EXPERIMENT_COLUMNS",
@@ -242,20 +243,30 @@ _TOML_SECTIONS: dict[str, dict[str, _Range]] = {
     "bed": {"phi_c": _FRACTION},
 }
 
-#: Force-term parameter columns of a batch table (``docs/physics-model.md``).
-BATCH_FORCE_COLUMNS: tuple[str, ...] = ("k", "c_d", "kappa", "r_unload", "k2", "b", "c_comp")
+#: Force-term parameter columns of a batch table: every parameter of the force-term
+#: registry (:data:`granbayes.forces.PARAMETER_NAMES`, in its units).
+BATCH_FORCE_COLUMNS: tuple[str, ...] = PARAMETER_NAMES
 
 #: Per-row experiment override columns of a batch table (robot, then command settings).
 BATCH_EXPERIMENT_COLUMNS: tuple[str, ...] = (*_ROBOT_RANGES, *_COMMAND_RANGES)
 
-#: Allowed values of the force columns. ``r_unload >= 1`` (the bound of
-#: ``granbayes.forces``): an unloading line less steep than the loading curve would let the
-#: bed create energy. The other lower bounds are 0 here: a row with ``k = 0`` is simulated
-#: and fails alone, with its status.
-_FORCE_RANGES: dict[str, _Range] = {
-    name: (_Range(1.0, lower_closed=True) if name == "r_unload" else _NON_NEGATIVE)
-    for name in BATCH_FORCE_COLUMNS
-}
+
+def _force_ranges() -> dict[str, _Range]:
+    """Allowed values of the force columns, read from the registry at each call.
+
+    Each column takes the lower bound of its parameter in :mod:`granbayes.forces`, always
+    included, and no upper bound: ``r_unload >= 1`` (an unloading line less steep than the
+    loading curve would let the bed create energy), the others ``>= 0``. A value the
+    simulator refuses (``k = 0``, a value above a parameter's upper bound) is simulated and
+    fails alone, with its status.
+
+    Returns
+    -------
+    dict of str to _Range
+        Column name to allowed values, for every registered parameter.
+    """
+    return {p.name: _Range(p.lower, lower_closed=True) for p in registered_parameters()}
+
 
 #: The per-row command-setting columns of ``jumps.csv``, in output order.
 _JUMP_SETTING_COLUMNS: tuple[str, ...] = ("freq_hz", "amplitude_mm", "delay_ms", "settle_periods")
@@ -860,10 +871,9 @@ def load_batch_table(path: str | Path) -> pd.DataFrame:
     path : str or Path
         A CSV file. Required columns: ``command``, ``phi`` [-] and ``k`` [N/m]
         (:data:`BATCH_REQUIRED_FORCE_COLUMNS`; an empty cell makes that row fail with
-        status ``failed:bad-input``). Optional numeric columns:
-        the other force parameters of :data:`BATCH_FORCE_COLUMNS` (``c_d``, ``kappa``,
-        ``r_unload``, ``k2``, ``b``, ``c_comp``; units of ``docs/physics-model.md``) and the per-row
-        experiment overrides :data:`BATCH_EXPERIMENT_COLUMNS` (units of
+        status ``failed:bad-input``). Optional numeric columns: the other force-term
+        parameters (every parameter registered in :data:`granbayes.forces.TERMS`, in its
+        unit) and the per-row experiment overrides :data:`BATCH_EXPERIMENT_COLUMNS` (units of
         ``experiment.toml``).
 
     Returns
@@ -898,7 +908,7 @@ def load_batch_table(path: str | Path) -> pd.DataFrame:
         "command": table.choices("command", COMMAND_NAMES),
         "phi": table.floats("phi", _FRACTION, required=True),
     }
-    for name, allowed in (_FORCE_RANGES | _ROBOT_RANGES | _COMMAND_RANGES).items():
+    for name, allowed in (_force_ranges() | _ROBOT_RANGES | _COMMAND_RANGES).items():
         if name in table.columns:
             converted[name] = table.floats(name, allowed, required=False)
     table.raise_first_problem()

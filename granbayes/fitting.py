@@ -667,9 +667,23 @@ def _common_shape(parts: list[FitPart]) -> tuple[int, int]:
 
 
 def _variable_attrs(names: tuple[str, ...]) -> dict[str, dict[str, str]]:
-    """Units and descriptions of the posterior variables (from the force registry)."""
-    by_name = {p.name: p for p in PARAMETERS}
-    out = {n: {"units": by_name[n].unit, "long_name": by_name[n].description} for n in names}
+    """Units and descriptions of the posterior variables.
+
+    Parameters
+    ----------
+    names : tuple of str
+        The fitted force-term parameters; their ``units`` and ``long_name`` are read from
+        the force-term registry (:data:`granbayes.forces.TERMS`) at each call.
+
+    Returns
+    -------
+    dict of str to dict
+        Variable name to its attributes, for ``names``, ``sigma_mm`` [mm] and the heights
+        [mm].
+    """
+    from .forces import parameter  # at call time: a term registered at run time is seen
+
+    out = {n: {"units": parameter(n).unit, "long_name": parameter(n).description} for n in names}
     out["sigma_mm"] = {"units": "mm", "long_name": "trial-to-trial scatter of jump heights"}
     out["height_mm"] = {"units": "mm", "long_name": "jump height"}
     out["height_sim_mm"] = {"units": "mm", "long_name": "simulated jump height (no noise)"}

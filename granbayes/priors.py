@@ -1,5 +1,9 @@
 """Priors: bounded, physically motivated, one per parameter, overridable from TOML.
 
+The default prior of a force-term parameter, with its reason, is part of the parameter's
+entry in the force-term registry (:data:`granbayes.forces.TERMS`); the noise parameter's
+is here.
+
 Every prior is proper and bounded. Scale parameters that span decades (stiffnesses, the
 unloading ratio, the noise) are log-uniform; coefficients that may vanish (drag, added
 mass, viscous, compaction) are uniform from zero. The sampler works in *sampling
@@ -29,7 +33,7 @@ import numpy as np
 from scipy.stats import truncnorm
 
 from .errors import InputError
-from .forces import PARAMETERS
+from .forces import Parameter, parameter, registered_parameters
 
 __all__ = ["Prior", "default_priors", "load_priors", "priors_toml", "NOISE_PARAMETERS"]
 
@@ -160,65 +164,49 @@ class Prior:
         return f"{self.dist}[{self.lower:g}, {self.upper:g}]{extra} {self.unit}".strip()
 
 
-#: Noise-model parameters (not force terms).
-NOISE_PARAMETERS = ("sigma_mm",)
-
-_DEFAULTS: dict[str, Prior] = {
-    "k": Prior(
-        "loguniform",
-        200.0,
-        5e4,
-        unit="N/m",
-        why="poppy seeds under a 3.5 cm foot: 1e3-1e4 N/m, two decades of room",
-    ),
-    "c_d": Prior(
-        "uniform",
-        0.0,
-        300.0,
-        unit="kg/m",
-        why="rho_grain * foot area ~ 4 kg/m per unit drag coefficient; generous",
-    ),
-    "kappa": Prior("uniform", 0.0, 3.0, unit="-", why="0: no cone; 1: full jammed cone"),
-    "k2": Prior(
-        "uniform",
-        0.0,
-        1e6,
-        unit="N/m^2",
-        why="stiffening that at most doubles k within ~5 cm of depth",
-    ),
-    "b": Prior(
-        "uniform",
-        0.0,
-        200.0,
-        unit="N s/m",
-        why="linear damping up to a critically damped foot on the bed",
-    ),
-    "c_comp": Prior(
-        "uniform",
-        0.0,
-        3.0,
-        unit="-",
-        why="a fully compacted loose bed is at most 4x stiffer below its crater",
-    ),
-    "r_unload": Prior(
-        "loguniform",
-        1.0,
-        200.0,
-        unit="-",
-        why="1: elastic bed; >>1: plastic bed that keeps its crater",
-    ),
+#: Default priors of the noise-model parameters (those of the force terms are in the
+#: force-term registry, :data:`granbayes.forces.TERMS`).
+_NOISE_DEFAULTS: dict[str, Prior] = {
     "sigma_mm": Prior(
         "loguniform", 0.3, 30.0, unit="mm", why="trial-to-trial scatter of jump heights"
     ),
 }
 
-assert set(_DEFAULTS) == {p.name for p in PARAMETERS} | set(NOISE_PARAMETERS)
-_PARAMETER = {p.name: p for p in PARAMETERS}
+#: Noise-model parameters (not force terms).
+NOISE_PARAMETERS: tuple[str, ...] = tuple(_NOISE_DEFAULTS)
 
 
 def default_priors() -> dict[str, Prior]:
-    """The default prior of every force-term and noise parameter."""
-    return dict(_DEFAULTS)
+    """The default prior of every force-term and noise parameter.
+
+    Those of the force-term parameters are read from the registry
+    (:data:`granbayes.forces.TERMS`, each :class:`~granbayes.forces.Parameter`'s ``prior``,
+    see :func:`_registry_prior`) at each call, in library order; the noise parameters
+    follow.
+
+    Returns
+    -------
+    dict of str to Prior
+        Parameter name to prior (bounds in the parameter's unit).
+    """
+    return {p.name: _registry_prior(p) for p in registered_parameters()} | _NOISE_DEFAULTS
+
+
+def _registry_prior(param: Parameter) -> Prior:
+    """The default prior of a force-term parameter, from its registry entry.
+
+    Parameters
+    ----------
+    param : granbayes.forces.Parameter
+        A registered parameter; its ``prior`` gives the family, bounds and reason, its
+        ``unit`` the unit.
+
+    Returns
+    -------
+    Prior
+    """
+    d = param.prior
+    return Prior(d.dist, d.lower, d.upper, mu=d.mu, sigma=d.sigma, unit=param.unit, why=d.why)
 
 
 def load_priors(path: str | Path, base: Mapping[str, Prior] | None = None) -> dict[str, Prior]:
@@ -283,10 +271,12 @@ def load_priors(path: str | Path, base: Mapping[str, Prior] | None = None) -> di
 
 def _outside_allowed(name: str, prior: Prior) -> str | None:
     """Why a prior's support reaches outside the parameter's allowed values, or None."""
-    if name not in _PARAMETER:
+    try:
+        allowed = parameter(name)
+    except KeyError:
         return None  # a noise parameter: positive by its log-scale family
     for end in ("lower", "upper"):
-        problem = _PARAMETER[name].check(getattr(prior, end))
+        problem = allowed.check(getattr(prior, end))
         if problem:
             return f"prior {end} bound outside the allowed values: {problem}"
     return None

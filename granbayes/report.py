@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 from . import datatree as gdt
 from .criticism import identifiability_table
 from .experiment import COMMAND_NAMES
-from .forces import PARAMETERS
+from .forces import parameter
 
 __all__ = [
     "data_label",
@@ -36,17 +36,9 @@ __all__ = [
     "write_diagnosis_report",
 ]
 
-_UNITS = {p.name: p.unit for p in PARAMETERS} | {"sigma_mm": "mm"}
-_LABELS = {
-    "k": "k [N/m]",
-    "c_d": "c_d [kg/m]",
-    "kappa": "κ [-]",
-    "k2": "k2 [N/m²]",
-    "b": "b [N s/m]",
-    "c_comp": "c_comp [-]",
-    "r_unload": "r_unload [-]",
-    "sigma_mm": "σ [mm]",
-}
+#: Label and unit of the noise parameter; those of the force-term parameters are in the
+#: registry (:data:`granbayes.forces.TERMS`).
+_NOISE_LABELS: dict[str, tuple[str, str]] = {"sigma_mm": ("σ [mm]", "mm")}
 _COLORS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00")
 
 
@@ -92,8 +84,24 @@ def source_label(sources: Iterable[object]) -> str:
     )
 
 
+def _unit(name: str) -> str | None:
+    """Unit of a parameter (from the force-term registry), or None if it is unknown."""
+    if name in _NOISE_LABELS:
+        return _NOISE_LABELS[name][1]
+    try:
+        return parameter(name).unit
+    except KeyError:
+        return None
+
+
 def _label(name: str) -> str:
-    return _LABELS.get(name, f"{name} [{_UNITS.get(name, '')}]")
+    """Axis and table label of a parameter, e.g. ``"k2 [N/m²]"`` (from the registry)."""
+    if name in _NOISE_LABELS:
+        return _NOISE_LABELS[name][0]
+    try:
+        return parameter(name).label
+    except KeyError:
+        return f"{name} []"
 
 
 def plot_corner(
@@ -448,7 +456,7 @@ def _prior_posterior_labels(dt: xr.DataTree, names: list[str]) -> dict[str, str]
     for n in names:
         symbol = _label(n).split(" [")[0]
         out[n] = (
-            f"log₁₀ {symbol} ({symbol} in {_UNITS.get(n, '-')})" if _log_scale(dt, n) else _label(n)
+            f"log₁₀ {symbol} ({symbol} in {_unit(n) or '-'})" if _log_scale(dt, n) else _label(n)
         )
     return out
 

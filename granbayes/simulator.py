@@ -29,7 +29,7 @@ from . import _kernel
 from ._deprecated import alias_getattr
 from .commands import CommandProgram, build_command
 from .experiment import CommandSettings, Experiment, Robot
-from .forces import PARAMETERS, parameter_term
+from .forces import PARAMETER_NAMES, PARAMETERS, parameter_term
 
 __all__ = [
     "ROW_FIELDS",
@@ -207,8 +207,20 @@ def _robot_row(robot: Robot) -> np.ndarray:
 
 
 def _check_param_names(params: Mapping[str, object]) -> None:
+    """Refuse (``KeyError``) a parameter the compiled kernel has no slot for.
+
+    An unknown name gets the registry's message, naming the valid parameters; a name
+    registered after the kernel's row layout was built (a term added at run time, in
+    tests) is refused too rather than silently ignored.
+    """
     for name in params:
-        parameter_term(name)  # raises KeyError naming the valid parameters
+        term = parameter_term(name)  # raises KeyError naming the valid parameters
+        if name not in PARAMETER_NAMES:
+            raise KeyError(
+                f"force parameter {name!r} (term {term!r}) is not in the compiled kernel's "
+                "parameter layout: terms need their physics in granbayes/_kernel.py and a "
+                "fresh import"
+            )
 
 
 def build_rows(robot: Robot, phi: ArrayLike, params: Mapping[str, ArrayLike]) -> np.ndarray:

@@ -17,8 +17,12 @@ check themselves against one reference (like ``arviz_base.testing``). It is not 
 right-hand side and solve_ivp's own event machinery, and it is written for clarity rather
 than speed. It shares nothing with the compiled integrator (``granbayes._kernel``) except
 the command waveforms (:func:`granbayes.commands.build_command`), the robot/settings
-containers (:mod:`granbayes.experiment`) and the parameter bounds of the force-term
-registry (:mod:`granbayes.forces`); its only numerical dependency is scipy.
+containers (:mod:`granbayes.experiment`) and the parameter bounds and "off" values of the
+force-term registry (:mod:`granbayes.forces`); its only numerical dependency is scipy.
+
+It also holds the parameter box of the energy-identity property test
+(:func:`energy_test_box`), derived from the registry so that a new term is tested
+without another edit.
 
 How the non-smooth model is integrated
 --------------------------------------
@@ -73,11 +77,18 @@ from scipy.optimize import OptimizeResult, brentq
 
 from .commands import CommandProgram, build_command
 from .experiment import COMMAND_NAMES, Experiment
-from .forces import PARAMETERS
+from .forces import PARAMETERS, Parameter
 from .simulator import SolverSettings
 from .synthetic import make_jumps
 
-__all__ = ["COMPACTION_LENGTH", "PARAMETER_DEFAULTS", "simulate_height_scipy", "synthetic_jumps"]
+__all__ = [
+    "COMPACTION_LENGTH",
+    "ENERGY_BOX_WIDENING",
+    "PARAMETER_DEFAULTS",
+    "energy_test_box",
+    "simulate_height_scipy",
+    "synthetic_jumps",
+]
 
 #: Gravitational acceleration [m/s^2].
 G = 9.81
@@ -87,17 +98,59 @@ CONE_MU = 2.0
 #: Grain-scale compaction length l_c [m] of the ``compaction`` term (physics-model.md s. 8).
 COMPACTION_LENGTH = 1e-3
 
-#: Values of the force parameters that are not given (term switched off; default bed). Kept
-#: here rather than read from the registry, so that a term added to :mod:`granbayes.forces`
-#: but not to this oracle is refused (``KeyError``) instead of silently ignored.
+#: The optional force parameters whose physics this oracle implements. Listed here rather
+#: than read from the registry, so that a term added to :mod:`granbayes.forces` but not to
+#: this oracle is refused (``KeyError``) instead of silently ignored.
+_IMPLEMENTED = ("c_d", "kappa", "k2", "b", "c_comp", "r_unload")
+
+#: Values of the force parameters that are not given (term switched off; default bed): the
+#: ``absent`` values of the registry, for the parameters this oracle implements.
 PARAMETER_DEFAULTS: dict[str, float] = {
-    "c_d": 0.0,
-    "kappa": 0.0,
-    "r_unload": 20.0,
-    "k2": 0.0,
-    "b": 0.0,
-    "c_comp": 0.0,
+    p.name: p.absent for p in PARAMETERS if p.name in _IMPLEMENTED and p.absent is not None
 }
+
+#: How far the energy-test box reaches beyond the realistic range of a dimensional
+#: coefficient: 5 times its upper end.
+ENERGY_BOX_WIDENING = 5.0
+
+
+def energy_test_box(parameter: Parameter) -> tuple[float, float]:
+    """The box of a parameter over which the energy identity is tested [parameter's unit].
+
+    The registry's hard bounds (``k`` up to 1e9 N/m, ``k2`` up to 1e12 N/m^2, ``r_unload``
+    up to 1e6) are limits of validity, not beds a robot jumps on. The box is the union of
+    what a fit can ever propose (the support of the parameter's default prior) and its
+    realistic range, widened to :data:`ENERGY_BOX_WIDENING` times the upper end for a
+    dimensional coefficient. A dimensionless ratio (unit ``"-"``) stops at its prior's
+    upper bound, which is its physical scale. For the library: ``k`` from 200 N/m (the
+    prior's floor: the settled robot sinks 64 mm) to 5e4 N/m, ``c_d`` to 500 kg/m, ``k2``
+    to 1e6 N/m^2, ``b`` to 250 N s/m; ``kappa`` to 3 full cones, ``c_comp`` to 3 (a
+    compacted bed 4 times stiffer), ``r_unload`` to 200 (a plastic bed). The lower ends are
+    0, and ``r_unload = 1``, the elastic bed where the identity is tightest.
+
+    Parameters
+    ----------
+    parameter : Parameter
+        A registered force-term parameter (its ``typical`` range, ``unit`` and ``prior``
+        are used).
+
+    Returns
+    -------
+    tuple of float
+        ``(lower, upper)`` in the parameter's unit.
+
+    Examples
+    --------
+    >>> from granbayes.forces import parameter
+    >>> energy_test_box(parameter("k")), energy_test_box(parameter("r_unload"))
+    ((200.0, 50000.0), (1.0, 200.0))
+    """
+    lower = float(min(parameter.typical[0], parameter.prior.lower))
+    upper = float(parameter.prior.upper)
+    if parameter.unit != "-":
+        upper = max(upper, ENERGY_BOX_WIDENING * float(parameter.typical[1]))
+    return lower, upper
+
 
 ADVANCING, CONTACT, FREE = "advancing", "contact", "free"
 

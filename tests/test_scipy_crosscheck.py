@@ -162,7 +162,10 @@ def test_oracle_docstring_examples() -> None:
 
 
 def test_oracle_implements_every_registered_parameter() -> None:
-    """A term added to the registry must be added to the oracle (with the same default)."""
+    """A term added to the registry must have its physics in the oracle too.
+
+    The oracle lists the parameters it implements; their defaults are the registry's.
+    """
     assert set(granbayes.testing.PARAMETER_DEFAULTS) | {"k"} == set(PARAMETER_NAMES)
     for p in PARAMETERS:
         if p.absent is not None:
