@@ -1,4 +1,4 @@
-"""granbayes: what force does a granular bed exert on a robot that jumps off it?
+"""granbayes: the force a granular bed exerts on a robot that jumps off it.
 
 The package follows the flow of data:
 

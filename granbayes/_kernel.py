@@ -483,7 +483,8 @@ def _lin_modal(t, y, c):
 @njit(cache=True)
 def _lin_eval(t, y, tau, a1, a2, c0, s0, c):
     """Exact state at ``t + tau`` from state ``y`` at ``t`` with modal amplitudes
-    ``_lin_modal(t, y, c)``."""
+    ``_lin_modal(t, y, c)``.
+    """
     xr, xf, vr, vf = y
     mu, mf = c[_C_M], c[_C_MF]
     w = c[_C_OMEGA]
@@ -533,7 +534,8 @@ def _lin_step(t, y, tau, c):
 @njit(cache=True)
 def _env_lo(x0, x1, b, r, tau):
     """Lower bound of min over [0, tau] of a component with value x0, slope x1 at 0,
-    |second derivative| <= b and |value| <= r throughout."""
+    |second derivative| <= b and |value| <= r throughout.
+    """
     return max(-r, min(x0, x0 + tau * (x1 - 0.5 * b * tau)))
 
 
@@ -706,7 +708,8 @@ def _gddot(kind, f, c):
 def _gtol(kind, c, tol):
     """Absolute tolerance on g at an event: ``EVENT_TOL`` times the absolute integration
     tolerance, within 1e-13 to 1e-11 m on positions and 1e-11 to 1e-9 m/s on velocities
-    (the lower ends at converged settings, the upper ones at the defaults)."""
+    (the lower ends at converged settings, the upper ones at the defaults).
+    """
     gx = min(1e-11, max(1e-13, EVENT_TOL * tol[1]))
     if kind == _EV_REENTER or kind == _EV_TOUCH:
         return gx

@@ -393,8 +393,11 @@ def rederive_verdicts(
 
 
 def _dof(row) -> float:
-    """Pooled degrees of freedom of a case's scatter; rows that lack it (recorded before it
-    was) get it back from their recorded threshold, ``t.isf(alpha / (2 n), dof)``."""
+    """Pooled degrees of freedom of a case's scatter.
+
+    Rows that lack it (recorded before it was) get it back from their recorded threshold,
+    ``t.isf(alpha / (2 n), dof)``.
+    """
     from scipy import optimize, stats
 
     dof = getattr(row, "dof_min", None)

@@ -72,6 +72,7 @@ class CommandProgram:
     pushoff_index: int = 0
 
     def __post_init__(self) -> None:
+        """Check the segments and the push-off index."""
         if not 1 <= len(self.segments) <= MAX_SEGMENTS:
             raise ValueError(f"a command has 1 to {MAX_SEGMENTS} segments")
         if self.start_state not in START_STATES:

@@ -365,11 +365,12 @@ def misfit_threshold(residuals: pd.DataFrame, family_alpha: float) -> float:
 
 
 def describe_cell(row: Mapping) -> str:
-    """A misfit cell in words, e.g. "delayed stutter preload at phi = 0.592 (12 Hz, 20 mm,
-    3 periods settled) is under-predicted by 18.1 mm (z = 5.3)".
+    """A misfit cell in words.
 
-    The settings that distinguish cells are named: frequency and amplitude, the delay of a
-    delayed stutter, the settle periods of a delayed stutter preload.
+    For example "delayed stutter preload at phi = 0.592 (12 Hz, 20 mm, 3 periods settled)
+    is under-predicted by 18.1 mm (z = 5.3)". The settings that distinguish cells are
+    named: frequency and amplitude, the delay of a delayed stutter, the settle periods of a
+    delayed stutter preload.
 
     Parameters
     ----------
@@ -695,7 +696,7 @@ class FitBank:
 
 
 def _log_predictive(part, rows: pd.DataFrame) -> np.ndarray:
-    """log p(y_i | data of the fit) for held-out jumps ``rows`` under a fitted run."""
+    """Log p(y_i | data of the fit) for held-out jumps ``rows`` under a fitted run."""
     flat = part.run.samples.reshape(-1, part.run.samples.shape[-1])
     return part.model.log_predictive_density(flat, Observations.from_table(rows))
 

@@ -157,8 +157,10 @@ def build_datatree(
 
 
 def _attr(value: object) -> object:
-    """A netCDF-storable attribute: strings and numbers as they are, the rest (booleans,
-    lists, mappings) as JSON text."""
+    """A netCDF-storable attribute.
+
+    Strings and numbers as they are, the rest (booleans, lists, mappings) as JSON text.
+    """
     if isinstance(value, str | int | float) and not isinstance(value, bool):
         return value
     return json.dumps(value)
@@ -413,8 +415,10 @@ def pit_uniformity(pit: np.ndarray) -> float:
 
 
 def _draw_uniform_band(fig, n: int, band_prob: float, seed: int) -> None:
-    """Shade, on every axis of an ECDF-difference figure, the ``band_prob`` simultaneous
-    band of the ECDF of ``n`` uniform values minus the uniform CDF (grey)."""
+    """Shade the simultaneous band of uniform ECDF differences on every axis (grey).
+
+    The ``band_prob`` band of the ECDF of ``n`` uniform values minus the uniform CDF.
+    """
     from arviz_stats.ecdf_utils import ecdf_pit
 
     x, _, lower, upper = ecdf_pit(
@@ -507,8 +511,9 @@ def plot_prior_posterior(
     log10: Sequence[str] = (),
     title: str = "",
 ) -> Path:
-    """Prior and posterior marginals per parameter and volume fraction
-    (``arviz_plots.plot_prior_posterior``), written as a PNG file.
+    """Prior and posterior marginals per parameter and volume fraction, as a PNG file.
+
+    Drawn with ``arviz_plots.plot_prior_posterior``.
 
     One row per parameter, one column per volume fraction. A posterior as wide as its
     prior means the data do not determine the parameter.

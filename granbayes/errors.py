@@ -42,6 +42,7 @@ class InputError(ValueError):
         super().__init__(str(self))
 
     def __str__(self) -> str:
+        """The message with the file, row and column it names."""
         where = []
         if self.file is not None:
             where.append(self.file)

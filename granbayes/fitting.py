@@ -100,6 +100,7 @@ class FitSettings:
     n_prior_draws: int = 200
 
     def __post_init__(self) -> None:
+        """Put the terms in canonical order and check the modes."""
         object.__setattr__(self, "terms", terms_of(self.terms))
         if self.phi_mode not in ("per_phi", "quadratic"):
             raise ValueError(f"phi_mode must be 'per_phi' or 'quadratic', got {self.phi_mode!r}")
@@ -852,8 +853,11 @@ def _assemble(
     seed: int,
     data_source: str,
 ) -> FitResult:
-    """The :class:`FitResult` of the runs: their draws, prior draws and attributes in one
-    DataTree (:func:`granbayes.datatree.build_datatree`)."""
+    """The :class:`FitResult` of the runs.
+
+    Their draws, prior draws and attributes in one DataTree
+    (:func:`granbayes.datatree.build_datatree`).
+    """
     n_jump = len(table)
     phis = np.unique(table["phi"].to_numpy(float))
     draws = _draws(parts, phis, n_jump, config, seed)
@@ -882,7 +886,7 @@ def _assemble(
 # ----------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class CommandComparison:
-    """One force law for all commands, or one per command? (:func:`compare_commands`)
+    """One force law for all commands, or one per command (:func:`compare_commands`).
 
     Attributes
     ----------
@@ -902,6 +906,7 @@ class CommandComparison:
     intervals: pd.DataFrame
 
     def __iter__(self) -> Iterator[pd.DataFrame]:
+        """Unpack as ``table, intervals``."""
         return iter((self.table, self.intervals))
 
 

@@ -116,7 +116,17 @@ class Parameter:
     prior: DefaultPrior = field(kw_only=True)
 
     def check(self, value: float) -> str | None:
-        """Return a message if ``value`` is not allowed, else ``None``."""
+        """Return a message if ``value`` is not allowed, else ``None``.
+
+        Parameters
+        ----------
+        value : float
+            Candidate value [the parameter's unit].
+
+        Returns
+        -------
+        str or None
+        """
         if not math.isfinite(value):
             return f"{self.name} must be finite, got {value!r}"
         if value < self.lower or (self.lower_open and value == self.lower):
@@ -349,7 +359,17 @@ def parameter(name: str) -> Parameter:
 
 
 def parameter_term(name: str) -> str:
-    """Name of the term that owns parameter ``name`` (``KeyError`` if none does)."""
+    """Name of the term that owns parameter ``name`` (``KeyError`` if none does).
+
+    Parameters
+    ----------
+    name : str
+        Parameter name.
+
+    Returns
+    -------
+    str
+    """
     return _lookup(name)[0]
 
 
@@ -387,6 +407,7 @@ class ForceLaw:
     values: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        """Put the terms in canonical order and check the values."""
         ordered = terms_of(self.terms)
         object.__setattr__(self, "terms", ordered)
         for name, value in self.values.items():
@@ -443,6 +464,16 @@ def typical_ranges(names: Iterable[str] | None = None) -> dict[str, tuple[float,
     """Realistic ranges [SI] of parameters (all of the library by default).
 
     The ranges used by benchmarks and property tests: poppy seeds and a lab robot.
+
+    Parameters
+    ----------
+    names : iterable of str, optional
+        Parameters (default: every one of the library).
+
+    Returns
+    -------
+    dict of str to (float, float)
+        Low and high value [SI] per parameter.
     """
     if names is None:
         return {p.name: p.typical for p in registered_parameters()}

@@ -483,7 +483,7 @@ class JumpModel:
         return self.log_density(self._y[None, :], mean, sigma)
 
     def log_predictive_density(self, u: np.ndarray, observations: Observations) -> np.ndarray:
-        """log p(y_i | draws) of (held-out) jumps, averaged over the draws ``u``.
+        """Log p(y_i | draws) of (held-out) jumps, averaged over the draws ``u``.
 
         Parameters
         ----------

@@ -67,6 +67,7 @@ class Prior:
     why: str = ""
 
     def __post_init__(self) -> None:
+        """Check the family and its parameters."""
         if self.dist not in _DISTS:
             raise ValueError(f"prior dist must be one of {_DISTS}, got {self.dist!r}")
         if not (math.isfinite(self.lower) and math.isfinite(self.upper)):
@@ -107,21 +108,52 @@ class Prior:
         return self.lower, self.upper
 
     def to_value(self, u: np.ndarray) -> np.ndarray:
-        """Sampling coordinate -> parameter value."""
+        """Sampling coordinate -> parameter value.
+
+        Parameters
+        ----------
+        u : ndarray
+            Sampling coordinates.
+
+        Returns
+        -------
+        ndarray
+            Values [the parameter's unit].
+        """
         u = np.asarray(u, dtype=float)
         if self.log_scale:
             return np.exp(u)
         return u * u if self.sqrt_scale else u
 
     def to_u(self, value: np.ndarray) -> np.ndarray:
-        """Parameter value -> sampling coordinate."""
+        """Parameter value -> sampling coordinate.
+
+        Parameters
+        ----------
+        value : ndarray
+            Values [the parameter's unit].
+
+        Returns
+        -------
+        ndarray
+        """
         value = np.asarray(value, dtype=float)
         if self.log_scale:
             return np.log(value)
         return np.sqrt(value) if self.sqrt_scale else value
 
     def log_jacobian(self, u: np.ndarray) -> np.ndarray:
-        """``log |d value / d u|`` of the sampling coordinate."""
+        """``log |d value / d u|`` of the sampling coordinate.
+
+        Parameters
+        ----------
+        u : ndarray
+            Sampling coordinates.
+
+        Returns
+        -------
+        ndarray
+        """
         u = np.asarray(u, dtype=float)
         if self.log_scale:
             return u
@@ -135,6 +167,15 @@ class Prior:
 
         The density of the parameter value times the Jacobian ``|d value / d u|``, so a
         uniform prior stays uniform in the value. Returns ``-inf`` outside the bounds.
+
+        Parameters
+        ----------
+        u : ndarray
+            Sampling coordinates.
+
+        Returns
+        -------
+        ndarray
         """
         u = np.asarray(u, dtype=float)
         lo, hi = self.bounds_u
@@ -149,7 +190,19 @@ class Prior:
         return np.where(inside, out, -np.inf)
 
     def sample_u(self, rng: np.random.Generator, size: int) -> np.ndarray:
-        """Draw in sampling coordinates (rejection for the truncated families)."""
+        """Draw in sampling coordinates (rejection for the truncated families).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            Source of randomness.
+        size : int
+            Number of draws.
+
+        Returns
+        -------
+        ndarray, shape (size,)
+        """
         lo, hi = self.bounds_u
         if self.dist == "uniform":
             return self.to_u(rng.uniform(self.lower, self.upper, size))

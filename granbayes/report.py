@@ -45,6 +45,11 @@ _COLORS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00")
 def load_truth(path: str | Path) -> dict[float, dict[str, float]]:
     """Read a ``truth.toml`` (as written by ``data/generate_reference.py``).
 
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+
     Returns
     -------
     dict of float to dict
@@ -59,6 +64,15 @@ def data_label(dt: xr.DataTree) -> str:
 
     Synthetic data sets mark every row (``source = "synthetic: <generator> seed=<n>"``);
     every figure and summary of such data carries this label.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit.
+
+    Returns
+    -------
+    str
     """
     obs = dt.observed_data.to_dataset()
     if "source" not in obs.coords:
@@ -159,6 +173,13 @@ def plot_predictive(dt: xr.DataTree, ci_prob: float = gdt.CI_PROB) -> Figure:
     dark band: the simulated height (force-law uncertainty); light band: a new jump
     (simulated height plus scatter); both ``ci_prob`` equal-tailed.
 
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit with posterior predictive and observed data.
+    ci_prob : float
+        Probability of the bands.
+
     Returns
     -------
     matplotlib.figure.Figure
@@ -227,7 +248,25 @@ def plot_parameters_vs_phi(
     truth: Mapping[float, Mapping[str, float]] | None = None,
     ci_prob: float = gdt.CI_PROB,
 ) -> Figure:
-    """Posterior median and ``ci_prob`` interval of each parameter against ``phi - phi_c``."""
+    """Posterior median and ``ci_prob`` interval of each parameter against ``phi - phi_c``.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit.
+    var_names : list of str
+        Parameters to plot.
+    phi_c : float
+        Critical packing fraction [-].
+    truth : mapping, optional
+        True values per volume fraction (synthetic data), drawn as crosses.
+    ci_prob : float
+        Probability of the intervals.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     post = dt.posterior.to_dataset()
     names = [n for n in var_names if n in post]
     phis = post["phi"].values
@@ -493,6 +532,15 @@ def plot_residual_heatmap(residuals: pd.DataFrame, title: str, z_threshold: floa
 
     Cells are coloured by the mean residual [mm] (red: the model under-predicts) and
     annotated with it and the z-score; cells with |z| above ``z_threshold`` are framed.
+
+    Parameters
+    ----------
+    residuals : pandas.DataFrame
+        Cells (:func:`granbayes.criticism.residual_table`).
+    title : str
+        Figure title.
+    z_threshold : float
+        Misfit threshold of |z|.
 
     Returns
     -------

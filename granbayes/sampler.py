@@ -224,7 +224,7 @@ def _moves(kind: Literal["de", "stretch"]) -> list:
 
 
 def _adapt(fn: LogProbFn, m: int) -> Callable[[np.ndarray], list]:
-    """emcee's vectorised-with-blobs protocol: a list of per-walker (lp, blob) tuples."""
+    """Emcee's vectorised-with-blobs protocol: a list of per-walker (lp, blob) tuples."""
 
     def wrapped(x: np.ndarray) -> list:
         lp, blobs = fn(x)

@@ -158,8 +158,11 @@ class SavedFit:
         return tuple(run["label"] for run in _json_attr(self.datatree, "runs"))
 
     def observed(self) -> pd.DataFrame:
-        """The fitted jumps table (one row per jump: ``phi``, ``command``, the settings,
-        ``height_mm`` and the other columns of ``jumps.csv``)."""
+        """The fitted jumps table.
+
+        One row per jump: ``phi``, ``command``, the settings, ``height_mm`` and the other
+        columns of ``jumps.csv``.
+        """
         obs = self.datatree["observed_data"].to_dataset()
         cols = {
             str(name): obs[name].values

@@ -1,5 +1,7 @@
-"""Test kit: an independent ``scipy.integrate.solve_ivp`` oracle of the jumping-robot model,
-and the one seeded factory of SYNTHETIC jump tables that the tests use.
+"""Test kit: an independent scipy oracle of the model and one seeded synthetic factory.
+
+The oracle is a ``scipy.integrate.solve_ivp`` implementation of the jumping-robot model;
+the factory makes the SYNTHETIC jump tables that the tests use.
 
 This module is public so that tests, benchmarks and other implementations of the model can
 check themselves against one reference (like ``arviz_base.testing``). It is not imported by
