@@ -12,6 +12,12 @@ simulating, fitting (:func:`fit`, :class:`FitConfig`, :class:`FitResult`,
 predicting (:func:`predict`, :class:`Prediction`) and criticising (:func:`diagnose`,
 :class:`DiagnoseConfig`, :class:`Diagnosis`, :func:`residual_table`). The inference names are
 imported on first use, so ``import granbayes`` stays as fast as the simulator needs.
+
+The analyses of the thesis's questions (``analyses/``) are built on submodules imported
+explicitly: :mod:`granbayes.analysis` (posterior summaries), :mod:`granbayes.maps` (misfit
+maps over a (k, c_d) grid), :mod:`granbayes.optimal` (settings search under a posterior),
+:mod:`granbayes.mechanics` (added-mass impulse, actuator power, rigid floor) and the
+figures of :mod:`granbayes.plots`.
 """
 
 import importlib.metadata as _metadata
