@@ -22,33 +22,23 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import xarray as xr
 from matplotlib.figure import Figure
 
 import granbayes
-from granbayes import COMMAND_NAMES, Experiment, InputError, load_experiment, load_jumps
+from granbayes import Experiment, InputError, load_experiment, load_jumps
 from granbayes._provenance import environment
+from granbayes.analysis import CI_PROB
 from granbayes.cli import staged_folder
-from granbayes.fitting import FitConfig, FitResult, data_hash, fit
-from granbayes.likelihood import SETTING_COLUMNS  # per-row command settings of a jumps table
+from granbayes.fitting import FitResult, FitSettings, data_hash, fit
+from granbayes.forces import terms_of
 from granbayes.report import markdown_table as _markdown_table
 from granbayes.report import source_label
 from granbayes.sampler import SamplerSettings
 from granbayes.synthetic import REFERENCE_DATA as _REFERENCE_DATA
 
-ROOT = Path(__file__).resolve().parents[1]
 #: The shipped SYNTHETIC reference data set (package data; data/generate_reference.py, seed
 #: 20261121).
 REFERENCE_DATA = _REFERENCE_DATA
-
-#: Interval reported everywhere in the analyses (equal-tailed).
-CI_PROB = 0.90
-
-#: One colour per command (Okabe-Ito, colour-blind safe), in COMMAND_NAMES order.
-COMMAND_COLORS = dict(
-    zip(COMMAND_NAMES, ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00"), strict=True)
-)
-COMMAND_MARKERS = dict(zip(COMMAND_NAMES, ("o", "s", "^", "D", "v"), strict=True))
 
 
 @dataclass
@@ -267,7 +257,7 @@ def run_fit(
     seed_offset: int = 0,
 ) -> FitResult:
     """A granbayes fit of ``terms`` to ``table`` with the analysis's chain settings."""
-    config = FitConfig(terms=tuple(terms), phi_mode=phi_mode, sampler=sampler_settings(ctx.fast))
+    config = FitSettings(terms=tuple(terms), phi_mode=phi_mode, sampler=sampler_settings(ctx.fast))
     result = fit(
         ctx.experiment,
         table.reset_index(drop=True),
@@ -280,50 +270,14 @@ def run_fit(
     return result
 
 
-def posterior_draws(
-    dt: xr.DataTree,
-    phi: float,
-    names: Sequence[str],
-    n: int,
-    rng: np.random.Generator,
-) -> dict[str, np.ndarray]:
-    """``n`` joint posterior draws (with replacement) of ``names`` at volume fraction ``phi``.
-
-    The same (chain, draw) pairs are used for every name, so correlations are kept.
-    """
-    post = dt.posterior.to_dataset().sel(phi=phi, method="nearest")
-    n_chain, n_draw = post.sizes["chain"], post.sizes["draw"]
-    idx = rng.integers(0, n_chain * n_draw, size=n)
-    return {name: post[name].values.reshape(n_chain * n_draw)[idx].astype(float) for name in names}
-
-
-def interval(values: np.ndarray, ci_prob: float = CI_PROB) -> tuple[float, float, float]:
-    """Median and the equal-tailed ``ci_prob`` interval of ``values`` (NaNs ignored)."""
-    v = np.asarray(values, dtype=float)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return (math.nan, math.nan, math.nan)
-    lo, med, hi = np.quantile(v, [(1 - ci_prob) / 2, 0.5, 1 - (1 - ci_prob) / 2])
-    return float(med), float(lo), float(hi)
-
-
-def fmt_triple(med: float, lo: float, hi: float, fmt: str = ".3g") -> str:
-    """``"median [lo, hi]"`` of a precomputed triple, each value formatted with ``fmt``."""
-    return f"{med:{fmt}} [{lo:{fmt}}, {hi:{fmt}}]"
-
-
-def fmt_interval(values: np.ndarray, digits: int = 3, ci_prob: float = CI_PROB) -> str:
-    """``"median [lo, hi]"`` of ``values`` with ``digits`` significant digits."""
-    return fmt_triple(*interval(values, ci_prob), fmt=f".{digits}g")
-
-
-def cell_experiment(experiment: Experiment, row: Mapping[str, object]) -> Experiment:
-    """The experiment with the command settings of one data row (or cell) applied."""
-    return experiment.replace(
-        **{k: float(row[k]) for k in SETTING_COLUMNS if k in row and pd.notna(row[k])}
-    )
-
-
 def markdown_table(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
     """A GitHub Markdown table; non-finite numbers are left blank."""
     return _markdown_table(df, floatfmt, missing="")
+
+
+def parse_terms(text: str) -> tuple[str, ...]:
+    """The force terms of a ``--terms`` value (``"depth,drag"``); InputError if unknown."""
+    try:
+        return terms_of([t.strip() for t in str(text).split(",") if t.strip()])
+    except (KeyError, ValueError) as exc:
+        raise InputError(f"--terms {text!r}: {exc}") from None

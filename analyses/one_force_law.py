@@ -18,16 +18,13 @@ import sys
 
 import numpy as np
 import pandas as pd
-from matplotlib.figure import Figure
 
 import _common as common
-from granbayes import COMMAND_NAMES
+from granbayes.analysis import CI_PROB, posterior_intervals
 from granbayes.fitting import compare_commands
-from granbayes.forces import PARAMETERS, terms_of
+from granbayes.plots import plot_coefficients_vs_phi
 
 NAME = "one_force_law"
-_UNITS = {p.name: p.unit for p in PARAMETERS}
-_LOG = {"k", "k2", "c_d", "b"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,88 +49,26 @@ def analyse_law(ctx: common.Context, terms: tuple[str, ...], offset: int) -> dic
         ctx.table.reset_index(drop=True),
         shared,
         seed=ctx.seed + offset + 1,
-        ci_prob=common.CI_PROB,
-        details=True,
+        ci_prob=CI_PROB,
     )
-    post = shared.datatree.posterior.to_dataset()
-    shared_rows = []
-    for pname in shared.parts[0].model.parameters:
-        for phi in ctx.phis:
-            med, lo, hi = common.interval(post[pname].sel(phi=phi).values.ravel())
-            shared_rows.append(
-                {"phi": phi, "command": "shared", "parameter": pname, "median": med}
-                | {"lo": lo, "hi": hi}
-            )
-    intervals = pd.concat([pd.DataFrame(shared_rows), per_command], ignore_index=True)
+    parameters = shared.parts[0].model.parameters
+    shared_rows = posterior_intervals(shared.datatree, parameters, ctx.phis)
+    shared_rows.insert(1, "command", "shared")
+    intervals = pd.concat([shared_rows, per_command], ignore_index=True)
     return {
         "terms": terms,
         "comparison": table,
         "intervals": intervals,
-        "parameters": shared.parts[0].model.parameters,
+        "parameters": parameters,
     }
 
 
-def plot(ctx: common.Context, laws: list[dict]) -> Figure:
-    """One row per law, one column per coefficient: intervals vs phi - phi_c."""
-    n_col = max(len(law["parameters"]) for law in laws)
-    fig = Figure(figsize=(4.3 * n_col + 0.8, 3.7 * len(laws) + 0.9), layout="constrained")
-    axes = np.atleast_2d(fig.subplots(len(laws), n_col, squeeze=False))
-    span = np.ptp(ctx.phis) if ctx.phis.size > 1 else 0.02
-    offsets = dict(
-        zip(COMMAND_NAMES, np.linspace(-0.25, 0.25, len(COMMAND_NAMES)) * span / 4, strict=True)
-    )
-    for i, law in enumerate(laws):
-        iv = law["intervals"]
-        for j in range(n_col):
-            ax = axes[i, j]
-            if j >= len(law["parameters"]):
-                ax.set_visible(False)
-                continue
-            pname = law["parameters"][j]
-            sub = iv[iv["parameter"] == pname]
-            s = sub[sub["command"] == "shared"].sort_values("phi")
-            x = s["phi"] - ctx.phi_c
-            ax.fill_between(x, s["lo"], s["hi"], color="0.8", lw=0, label="shared (one law)")
-            ax.plot(x, s["median"], color="black", lw=1.5)
-            for command in COMMAND_NAMES:
-                c = sub[sub["command"] == command].sort_values("phi")
-                if c.empty:
-                    continue
-                ax.errorbar(
-                    c["phi"] - ctx.phi_c + offsets[command],
-                    c["median"],
-                    yerr=[c["median"] - c["lo"], c["hi"] - c["median"]],
-                    fmt=common.COMMAND_MARKERS[command],
-                    ms=4,
-                    capsize=2,
-                    color=common.COMMAND_COLORS[command],
-                    label=command.replace("_", " "),
-                )
-            if pname in _LOG and (sub["lo"] > 0).all():
-                ax.set_yscale("log")
-            ax.set_ylabel(f"{pname} [{_UNITS.get(pname, '')}]")
-            ax.set_xlabel(r"$\phi - \phi_c$")
-            ax.axvline(0, color="0.5", ls=":", lw=1)
-            ax.grid(alpha=0.3, which="both")
-            ax.set_title(f"{law_name(law['terms'])}: {pname}", fontsize=10)
-    axes[0, 0].legend(fontsize=7.5, loc="best", title="90% intervals", title_fontsize=7.5)
-    fig.suptitle(
-        ctx.title("One force law for every jump? Shared vs per-command coefficients"),
-        fontsize=11,
-    )
-    return fig
-
-
 def analyse(ctx: common.Context) -> tuple[str, dict]:
-    raw = ctx.args.terms or ["depth,drag"]
-    laws_terms = []
-    for text in raw:
-        try:
-            laws_terms.append(terms_of([t.strip() for t in text.split(",") if t.strip()]))
-        except (KeyError, ValueError) as exc:
-            raise common.InputError(f"--terms {text!r}: {exc}") from None
+    laws_terms = [common.parse_terms(text) for text in ctx.args.terms or ["depth,drag"]]
     laws = [analyse_law(ctx, terms, 100 * i) for i, terms in enumerate(laws_terms)]
-    ctx.save_figure(plot(ctx, laws), "coefficients_vs_phi")
+    title = ctx.title("One force law for every jump? Shared vs per-command coefficients")
+    fig = plot_coefficients_vs_phi(laws, ctx.phis, ctx.phi_c, title)
+    ctx.save_figure(fig, "coefficients_vs_phi")
     body: list[str] = []
     numbers: dict = {"laws": []}
     for law in laws:

@@ -18,6 +18,12 @@ Settings objects are named ``*Settings``: :class:`FitSettings`, :class:`SamplerS
 ``SolverOptions`` and ``DiagnoseConfig`` are deprecated aliases of the same classes:
 still importable (from ``granbayes`` and from their modules), with a
 ``DeprecationWarning``.
+
+The analyses of the thesis's questions (``analyses/``) are built on submodules imported
+explicitly: :mod:`granbayes.analysis` (posterior summaries), :mod:`granbayes.maps` (misfit
+maps over a (k, c_d) grid), :mod:`granbayes.optimal` (settings search under a posterior),
+:mod:`granbayes.mechanics` (added-mass impulse, actuator power, rigid floor) and the
+figures of :mod:`granbayes.plots`.
 """
 
 import importlib.metadata as _metadata

@@ -27,16 +27,6 @@ ROOT = Path(__file__).resolve().parents[1]
 ANALYSES = ROOT / "analyses"
 REFERENCE = REFERENCE_DATA
 
-#: The scripts of analyses/ still use deprecated API (old names of the settings classes,
-#: ``compare_commands(details=True)``) until they are swept to the new names; these tests
-#: check the analyses, not the deprecations (tests/test_api.py, tests/test_fit.py do).
-pytestmark = [
-    pytest.mark.filterwarnings(r"ignore:granbayes\..* is a deprecated alias of:DeprecationWarning"),
-    pytest.mark.filterwarnings(
-        r"ignore:compare_commands\(details=\.\.\.\) is deprecated:DeprecationWarning"
-    ),
-]
-
 
 def _module(name: str):
     if str(ANALYSES) not in sys.path:
