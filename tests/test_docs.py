@@ -102,3 +102,14 @@ def test_priors_toml_example_loads(tmp_path: Path) -> None:
     assert (priors["k"].dist, priors["k"].lower, priors["k"].upper) == ("loguniform", 500, 2e4)
     assert (priors["c_d"].dist, priors["c_d"].mu, priors["c_d"].sigma) == ("normal", 20, 10)
     assert priors["sigma_mm"] == load_priors(tmp_path / "priors.toml")["sigma_mm"]
+
+
+def test_readme_layout_table_lists_every_module() -> None:
+    """The README's package-layout table names every module of the package, and no other."""
+    text = (DOCS.parent / "README.md").read_text(encoding="utf-8")
+    section = text[text.index("## Package layout") : text.index("## Reproducibility")]
+    table = "\n".join(line for line in section.splitlines() if line.startswith("| `"))
+    listed = set(re.findall(r"`(\w+)\.py`", table))
+    package = DOCS.parent / "granbayes"
+    modules = {p.stem for p in package.glob("*.py")} - {"__init__"}
+    assert listed == modules, (sorted(modules - listed), sorted(listed - modules))
