@@ -725,7 +725,7 @@ class ProgressBars:
 
 
 def _add_diagnose_arguments(parser: argparse.ArgumentParser) -> None:
-    _add_inference_arguments(parser, max_steps=3_000)
+    _add_inference_arguments(parser, max_steps=10_000)
     parser.add_argument(
         "--baseline", default="depth", help="comma-separated terms of the baseline law"
     )
