@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import warnings
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -554,7 +555,8 @@ def screen(
         raise ValueError("screening needs phi_mode='per_phi'")
     priors = dict(priors if priors is not None else default_priors())
     table = _prepare(table)
-    parent_names = set(parent.attrs.get("parameters", ()))
+    names = parent.attrs.get("parameters", "[]")  # JSON text (netCDF attributes)
+    parent_names = set(json.loads(names) if isinstance(names, str) else names)
     total = 0.0
     specs = part_models(experiment, table, config, priors)
     for (_, model, _), part_seed in zip(specs, _seeds(seed, len(specs)), strict=True):
