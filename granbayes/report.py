@@ -659,7 +659,11 @@ def write_diagnosis_report(record: Mapping, selected: xr.DataTree, out: Path) ->
     worst = [m for m in rec["misfit"] if m["significant"]][:5]
     lines += ["", f"Baseline misfit ({rec['n_misfit_cells']} cells with |z| > {z:.2f}):", ""]
     lines += [f"- {m['description']}" for m in worst] or ["- none"]
-    lines += ["", "## Candidates (PSIS-LOO; exact refits or K-fold where Pareto k is above ArviZ's good_k)", ""]
+    lines += [
+        "",
+        "## Candidates (PSIS-LOO; exact refits or K-fold where Pareto k exceeds ArviZ's good_k)",
+        "",
+    ]
     cand = pd.DataFrame([_candidate_row(c, base_terms) for c in rec["candidates"]])
     lines += [markdown_table(cand) if len(cand) else "(none)", "", f"Rule: {rec['rule']['text']}."]
     lines += ["", "## Fits the decision rests on", ""]
