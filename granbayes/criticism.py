@@ -11,7 +11,8 @@
 3. name the cause: every other term of the library is added to the current law, warm-started
    from the current law's posterior (the new parameter at its "off" value), and the
    candidates are compared by PSIS-LOO (exact leave-one-out refits or K-fold where Pareto
-   k > 0.7 and the comparison decides the outcome);
+   k exceeds ArviZ's ``good_k`` (0.7 for the draws of a fit) and the comparison decides
+   the outcome);
 4. extend, forward, by :func:`decide` (the selection rule below), while misfit remains;
 5. check what is left: the selected law's own misfit cells (``residual_misfit``). Where
    misfit remains that no library term removes, the verdict is ``misfit_remains``: the
@@ -116,8 +117,8 @@ class DiagnoseSettings:
     kfold : int
         Folds of the K-fold fallback.
     max_refits : int
-        Jumps with Pareto k > 0.7 recomputed by exact leave-one-out refits; beyond this
-        number, K-fold cross-validation is used instead.
+        Jumps with Pareto k above ``good_k`` recomputed by exact leave-one-out refits;
+        beyond this number, K-fold cross-validation is used instead.
     nested_tolerance : float
         ELPD deficit [nats] (beyond 2 SE) of an extension below its nested parent that is
         taken as a sampling failure and rerun.
@@ -706,9 +707,18 @@ def _log_predictive(part, rows: pd.DataFrame) -> np.ndarray:
 class _Pointwise:
     """Pointwise ELPD of laws compared together, with the fallbacks for bad Pareto k.
 
-    Jumps with Pareto k > 0.7 in any of the compared laws are recomputed for all of them:
-    by exact refits when there are at most ``max_refits`` such jumps, otherwise by K-fold
-    cross-validation of the whole data set. Results are cached per law.
+    Jumps with Pareto k above ArviZ's ``good_k`` in any of the compared laws are recomputed
+    for all of them: by exact refits when there are at most ``max_refits`` such jumps,
+    otherwise by K-fold cross-validation of the whole data set. Results are cached per law.
+
+    Why not ``arviz_stats.reloo`` / ``loo_kfold`` with a ``SamplingWrapper``: the paired
+    ELPD difference of two laws needs the *same* jumps recomputed under both, the union of
+    their bad-k sets, while ``reloo`` refits the jumps that one law's own ``ELPDData`` flags;
+    and a refit here is a warm-started, lighter fit of one volume fraction (``per_phi`` fits
+    are independent) whose result is cached per law and reused in later rounds. Both
+    would have to be forced through the wrapper's ``sel_observations``/``sample`` calls
+    and an edited ``ELPDData``. The arithmetic is the same (the log-mean-exp of the
+    held-out log-likelihood over the refit's draws, :meth:`JumpModel.log_predictive_density`).
     """
 
     def __init__(self, bank: FitBank) -> None:
@@ -719,14 +729,16 @@ class _Pointwise:
     def __call__(self, keys: Sequence[tuple[str, ...]]) -> tuple[list[np.ndarray], str]:
         loos, cfg = self.bank.loos, self.bank.config
         bad = sorted(
-            set().union(*(np.flatnonzero(loos[k]["pareto_k"] > 0.7).tolist() for k in keys))
+            set().union(
+                *(np.flatnonzero(loos[k]["pareto_k"] > loos[k]["good_k"]).tolist() for k in keys)
+            )
         )
         if not bad:
             return [loos[k]["elpd_i"] for k in keys], "psis-loo"
         if len(bad) > cfg.max_refits:
             for k in keys:
                 if k not in self.kfold:
-                    self.bank.log(f"  {len(bad)} jumps with Pareto k > 0.7: {cfg.kfold}-fold CV")
+                    self.bank.log(f"  {len(bad)} jumps with bad Pareto k: {cfg.kfold}-fold CV")
                     self.kfold[k] = self.bank.kfold_elpd_i(k)
             return [self.kfold[k] for k in keys], "kfold"
         out = []
@@ -967,7 +979,7 @@ def _score_round(
             gain_vs_baseline_se=vs_base_se,
             rmse_mm=rmse_mm(res),
             max_pareto_k=float(loos[key]["max_pareto_k"]),
-            method="psis-loo (Pareto k > 0.7, not decisive)" if flagged else "psis-loo",
+            method="psis-loo (bad Pareto k, not decisive)" if flagged else "psis-loo",
             converged=bank.converged(key),
             screen_gain=screen_gain[term],
         )

@@ -266,11 +266,14 @@ def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
     -------
     dict
         ``elpd``, ``se``, ``p`` (effective number of parameters), ``elpd_i`` and
-        ``pareto_k`` (ndarrays over jumps), ``max_pareto_k``, ``n_bad_k`` (k > 0.7).
+        ``pareto_k`` (ndarrays over jumps), ``max_pareto_k``, ``good_k`` (ArviZ's
+        sample-size dependent threshold ``min(1 - 1/log10(S), 0.7)`` for S draws, above
+        which PSIS is unreliable) and ``n_bad_k`` (jumps with k > ``good_k``).
     """
     if isinstance(dt, np.ndarray):
         elpd_i, k, p_i = array_stats.loo(np.moveaxis(dt, -1, 0), chain_axis=-2, draw_axis=-1)
         elpd_i, k = np.asarray(elpd_i, dtype=float), np.asarray(k, dtype=float)
+        good_k = _good_k(dt.shape[0] * dt.shape[1])
         return {
             "elpd": float(np.sum(elpd_i)),
             "se": float(np.sqrt(elpd_i.size * np.var(elpd_i))),
@@ -278,12 +281,14 @@ def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
             "elpd_i": elpd_i,
             "pareto_k": k,
             "max_pareto_k": float(np.nanmax(k)),
-            "n_bad_k": int(np.sum(k > 0.7)),
+            "good_k": good_k,
+            "n_bad_k": int(np.sum(k > good_k)),
         }
     with warnings.catch_warnings():
         _ignore_pareto_k_warning()  # the k values are returned
         res = az.loo(dt, pointwise=True, var_name="height_mm")
     k = np.asarray(res.pareto_k)
+    good_k = float(res.good_k)
     return {
         "elpd": float(res.elpd),
         "se": float(res.se),
@@ -291,8 +296,14 @@ def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
         "elpd_i": np.asarray(res.elpd_i),
         "pareto_k": k,
         "max_pareto_k": float(np.nanmax(k)),
-        "n_bad_k": int(np.sum(k > 0.7)),
+        "good_k": good_k,
+        "n_bad_k": int(np.sum(k > good_k)),
     }
+
+
+def _good_k(n_samples: int) -> float:
+    """ArviZ's Pareto k threshold for ``n_samples`` draws (as ``ELPDData.good_k``)."""
+    return float(min(1.0 - 1.0 / np.log10(n_samples), 0.7)) if n_samples > 1 else 0.7
 
 
 def elpd_difference(elpd_i_a: np.ndarray, elpd_i_b: np.ndarray) -> tuple[float, float]:

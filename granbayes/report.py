@@ -387,7 +387,8 @@ def write_fit_report(
         f"{config['phi_mode']}; noise: {config['noise']}",
         f"- seed: {dt.attrs['seed']}; intervals: {gdt.CI_PROB:.0%} equal-tailed (ETI)",
         f"- PSIS-LOO: elpd = {loo['elpd']:.1f} ± {loo['se']:.1f}, p_loo = {loo['p']:.1f}, "
-        f"max Pareto k = {loo['max_pareto_k']:.2f} ({loo['n_bad_k']} jumps with k > 0.7)",
+        f"max Pareto k = {loo['max_pareto_k']:.2f} ({loo['n_bad_k']} jumps with k > "
+        f"{loo['good_k']:.2f})",
         f"- LOO-PIT calibration of the jump heights: uniformity p = {pit_p:.2f} "
         "(ArviZ `pot_c`; small p: the predictive distribution is mis-calibrated, see "
         "`loo_pit.png`)",
@@ -658,7 +659,11 @@ def write_diagnosis_report(record: Mapping, selected: xr.DataTree, out: Path) ->
     worst = [m for m in rec["misfit"] if m["significant"]][:5]
     lines += ["", f"Baseline misfit ({rec['n_misfit_cells']} cells with |z| > {z:.2f}):", ""]
     lines += [f"- {m['description']}" for m in worst] or ["- none"]
-    lines += ["", "## Candidates (PSIS-LOO; exact refits or K-fold where Pareto k > 0.7)", ""]
+    lines += [
+        "",
+        "## Candidates (PSIS-LOO; exact refits or K-fold where Pareto k exceeds ArviZ's good_k)",
+        "",
+    ]
     cand = pd.DataFrame([_candidate_row(c, base_terms) for c in rec["candidates"]])
     lines += [markdown_table(cand) if len(cand) else "(none)", "", f"Rule: {rec['rule']['text']}."]
     lines += ["", "## Fits the decision rests on", ""]

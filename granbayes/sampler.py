@@ -28,6 +28,19 @@ the result keeps only the ensembles of the best-supported mode, says so in a war
 is not converged. Ensembles that disagree at comparable log-probability are a multimodal
 posterior: sampling continues to ``max_steps`` and the warning says so. Nothing is silent.
 
+A single *walker* can be stuck too: an ensemble's moves (stretch, differential evolution,
+snooker) propose along lines through, or differences of, the other walkers, so a walker in
+a separate, worse-supported mode whose others all sit in the main mode can almost never
+reach it (a proposal lands in the valley between). A warm start puts one walker of each
+ensemble at the nested parent's solution, which is such a mode whenever the new term's
+"off" value is far from the truth; R-hat across ensembles cannot see it (every ensemble
+carries one) but the effective sample size stalls. So a walker whose *largest*
+log-probability over the post-burn-in window stays more than the ``mode_gap`` rule below
+its ensemble's median is stuck: its ensemble gets a fresh chain from its current
+positions, the stuck walkers moved onto jittered copies of its other walkers (this counts
+as a restart), and a warning says so. A walker that visits the main mode at all in the
+window is never flagged, so runs without stuck walkers are unchanged.
+
 With a checkpoint folder every ensemble is saved after every chunk (chain, blobs,
 acceptance counts, emcee's random state and the step at which its chain began, written to
 a temporary file and moved into place, so a checkpoint is always whole). All decisions
@@ -489,6 +502,7 @@ class _Check:
     ess_tail: np.ndarray
     lp_median: np.ndarray  # (n_ens,)
     lp_spread: float  # robust sd of the best ensemble's log-probability
+    walker_lp_max: tuple[np.ndarray, ...] = ()  # per ensemble (n_walkers,), post-burn-in
 
     def converged(self, s: SamplerSettings) -> bool:
         return bool(
@@ -555,7 +569,10 @@ def _check(ens: Sequence[_Ensemble], done: int, s: SamplerSettings) -> _Check:
         array_stats.ess(walkers, chain_axis=0, draw_axis=1, method="tail", prob=TAIL_PROB)
     )
     spread = (q75 - q25) / 1.35
-    return _Check(taus, burns, True, rhat, rhat_lp, ess_bulk, ess_tail, lp_median, spread)
+    walker_lp_max = tuple(lp.max(axis=0) for _, lp in post)
+    return _Check(
+        taus, burns, True, rhat, rhat_lp, ess_bulk, ess_tail, lp_median, spread, walker_lp_max
+    )
 
 
 def _stuck(check: _Check, s: SamplerSettings) -> list[int]:
@@ -565,6 +582,24 @@ def _stuck(check: _Check, s: SamplerSettings) -> list[int]:
     best = float(np.max(check.lp_median))
     gap = max(s.mode_gap, 3.0 * check.lp_spread)
     return [i for i, m in enumerate(check.lp_median) if m < best - gap]
+
+
+def _stuck_walkers(check: _Check, s: SamplerSettings) -> dict[int, np.ndarray]:
+    """Walkers (per ensemble) that never reached their ensemble's typical log-probability.
+
+    A walker is stuck when its largest post-burn-in log-probability lies more than
+    ``max(mode_gap, 3 lp_spread)`` below its ensemble's median; only a minority of an
+    ensemble can be (a majority elsewhere is the ensemble-level rule's business).
+    """
+    if not check.autocorr_ok or check.converged(s) or not check.walker_lp_max:
+        return {}
+    gap = max(s.mode_gap, 3.0 * check.lp_spread)
+    out = {}
+    for i, (top, med) in enumerate(zip(check.walker_lp_max, check.lp_median, strict=True)):
+        idx = np.flatnonzero(top < med - gap)
+        if 0 < idx.size < top.size / 2:
+            out[i] = idx
+    return out
 
 
 def _make_sampler(
@@ -685,6 +720,13 @@ def run_ensembles(
                 for i in stuck:
                     port = lockstep.port(i)
                     ens[i] = _restart(ens[best], port, n_walkers, ndim, s, seed, done, i, restarts)
+            walkers = _stuck_walkers(check, s) if restarts < s.max_restarts and not stuck else {}
+            if walkers:
+                restarts += 1
+                notes.append(_walker_note(walkers, check, done))
+                for i, idx in walkers.items():
+                    port = lockstep.port(i)
+                    ens[i] = _move_walkers(ens[i], idx, port, s, seed, done, i, restarts, check)
         n = min(c - done % c, s.max_steps - done)
         lockstep.run([_advance(e, n) for e in ens])
         for e in ens:
@@ -716,6 +758,52 @@ def _restart_note(stuck: list[int], best: int, check: _Check, done: int) -> str:
         f"step {done}: ensemble(s) {worst} stuck in a worse-supported mode than ensemble "
         f"{best} ({check.lp_median[best]:.1f}); restarted from ensemble {best}'s walkers"
     )
+
+
+def _walker_note(walkers: dict[int, np.ndarray], check: _Check, done: int) -> str:
+    parts = []
+    for i, idx in walkers.items():
+        top = check.walker_lp_max[i][idx]
+        parts.append(
+            f"ensemble {i}: walker(s) {', '.join(map(str, idx))} (best log-probability "
+            f"{', '.join(f'{v:.1f}' for v in top)} vs the ensemble's median "
+            f"{check.lp_median[i]:.1f})"
+        )
+    return (
+        f"step {done}: walkers stuck in a worse-supported mode, {'; '.join(parts)}; their "
+        "ensembles restarted with them moved onto their other walkers"
+    )
+
+
+def _move_walkers(
+    e: _Ensemble,
+    stuck: np.ndarray,
+    fn: Callable,
+    s: SamplerSettings,
+    seed: int,
+    done: int,
+    index: int,
+    restart: int,
+    check: _Check,
+) -> _Ensemble:
+    """A fresh chain for ensemble ``e`` with its ``stuck`` walkers moved onto the others.
+
+    Each stuck walker takes the current position of another walker of the ensemble, drawn
+    at random, jittered by 1% of the post-burn-in spread of the others. Deterministic in
+    (seed, step, ensemble, restart number), so a resumed run repeats it.
+    """
+    rng = np.random.default_rng([seed, done, index, restart, 1])
+    chain = e.sampler.get_chain()[: done - e.offset]
+    n_walkers, ndim = chain.shape[1:]
+    good = np.setdiff1d(np.arange(n_walkers), stuck)
+    start = chain[-1].copy()
+    post = chain[int(check.burn[index]) :, good].reshape(-1, ndim)
+    scale = np.std(post, axis=0)
+    donors = rng.choice(good, size=stuck.size)
+    start[stuck] = start[donors] + 1e-2 * scale * rng.standard_normal((stuck.size, ndim))
+    sampler = _make_sampler(fn, n_walkers, ndim, s)
+    sampler.random_state = np.random.RandomState(rng.integers(2**32)).get_state()
+    return _Ensemble(sampler, done, start)
 
 
 def _restart(

@@ -234,6 +234,23 @@ def test_saved_fit_serves_residuals_and_loo(per_phi: tuple[gb.FitResult, Path]) 
     assert saved.loo()["elpd"] == pytest.approx(loo(result.datatree)["elpd"])
 
 
+def test_loo_flags_bad_pareto_k_by_arviz_good_k(per_phi: tuple[gb.FitResult, Path]) -> None:
+    """``n_bad_k`` counts k above ArviZ's sample-size dependent ``good_k`` in both branches."""
+    import arviz as az
+
+    dt = per_phi[0].datatree
+    res = az.loo(dt, pointwise=True, var_name="height_mm")
+    got = loo(dt)
+    assert got["good_k"] == pytest.approx(float(res.good_k))
+    assert got["n_bad_k"] == int(np.sum(np.asarray(res.pareto_k) > float(res.good_k)))
+    ll = dt["log_likelihood"]["height_mm"].transpose("chain", "draw", "jump").to_numpy()
+    for chains in (2, ll.shape[0]):  # few draws: good_k < 0.7
+        arr = loo(ll[:chains])
+        s = chains * ll.shape[1]
+        assert arr["good_k"] == pytest.approx(min(1.0 - 1.0 / np.log10(s), 0.7))
+        assert arr["n_bad_k"] == int(np.sum(arr["pareto_k"] > arr["good_k"]))
+
+
 def test_load_fit_bad_input(tmp_path: Path) -> None:
     with pytest.raises(gb.InputError, match="no such file"):
         gb.load_fit(tmp_path / "posterior.nc")
