@@ -111,9 +111,10 @@ class SamplerSettings:
         Largest rank-normalised split R-hat across ensembles.
     mode_gap : float
         Median log-probability deficit [nats] beyond which a disagreeing ensemble is in a
-        worse-supported mode.
+        worse-supported mode (and best log-probability deficit below its ensemble's median
+        beyond which a walker is stuck).
     max_restarts : int
-        Restarts of stuck ensembles per run.
+        Restarts per run of stuck ensembles, or of ensembles with stuck walkers.
     n_draws : int
         Draws kept per walker after burn-in and thinning.
     moves : {"de", "stretch"}
