@@ -720,7 +720,7 @@ def run_ensembles(
                 notes.append(_restart_note(stuck, best, check, done))
                 for i in stuck:
                     port = lockstep.port(i)
-                    ens[i] = _restart(ens[best], port, n_walkers, ndim, s, seed, done, i, restarts)
+                    ens[i] = _restart(ens[best], port, s, seed, done, i, restarts)
             walkers = _stuck_walkers(check, s) if restarts < s.max_restarts and not stuck else {}
             if walkers:
                 restarts += 1
@@ -802,16 +802,12 @@ def _move_walkers(
     scale = np.std(post, axis=0)
     donors = rng.choice(good, size=stuck.size)
     start[stuck] = start[donors] + 1e-2 * scale * rng.standard_normal((stuck.size, ndim))
-    sampler = _make_sampler(fn, n_walkers, ndim, s)
-    sampler.random_state = np.random.RandomState(rng.integers(2**32)).get_state()
-    return _Ensemble(sampler, done, start)
+    return _fresh_chain(fn, start, s, rng, done)
 
 
 def _restart(
     best: _Ensemble,
     fn: Callable,
-    n_walkers: int,
-    ndim: int,
     s: SamplerSettings,
     seed: int,
     done: int,
@@ -825,9 +821,19 @@ def _restart(
     rng = np.random.default_rng([seed, done, index, restart])
     chain = best.sampler.get_chain()
     last = chain[-1]
-    scale = np.std(chain[len(chain) // 2 :].reshape(-1, ndim), axis=0)
+    scale = np.std(chain[len(chain) // 2 :].reshape(-1, last.shape[-1]), axis=0)
     start = last + 1e-2 * scale * rng.standard_normal(last.shape)
-    sampler = _make_sampler(fn, n_walkers, ndim, s)
+    return _fresh_chain(fn, start, s, rng, done)
+
+
+def _fresh_chain(
+    fn: Callable, start: np.ndarray, s: SamplerSettings, rng: np.random.Generator, done: int
+) -> _Ensemble:
+    """A new ensemble from positions ``start``, its chain beginning at global step ``done``.
+
+    Its emcee random state is drawn from ``rng``.
+    """
+    sampler = _make_sampler(fn, *start.shape, s)
     sampler.random_state = np.random.RandomState(rng.integers(2**32)).get_state()
     return _Ensemble(sampler, done, start)
 
