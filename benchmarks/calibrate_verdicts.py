@@ -39,6 +39,7 @@ from granbayes.calibration import (
     CASE_KINDS,
     LIBRARY_EFFECTS,
     OUT_OF_LIBRARY,
+    STEP_BUDGET,
     diagnose_case,
     rederive_verdicts,
     summarize,
@@ -146,7 +147,11 @@ def write_summary(
         },
         "n_cases": len(results),
         "n_planned": n_planned or len(results),
-        "false_discovery_rate": None if null.empty else 1.0 - float(null["right"].iloc[0]),
+        # a discovery is a named term; a false alarm is any verdict but baseline_adequate
+        "false_discovery_rate": None if null.empty else float(null["wrong_term"].iloc[0]),
+        "false_alarm_rate": None if null.empty else 1.0 - float(null["right"].iloc[0]),
+        "n_over_budget": int((results["verdict"] == "over_budget").sum()),
+        "step_budget": STEP_BUDGET,
         "per_kind": summary.to_dict("records"),
         "sweep": swept.to_dict("records"),
         "median_time_per_case_s": float(results["wall_time_s"].median()),
@@ -175,7 +180,9 @@ def write_summary(
         "",
         "`right`: null -> baseline_adequate; a library term -> extended with exactly that "
         "term; out-of-library -> misfit_remains or a law that leaves no misfit. "
-        "`right_se`: binomial standard error.",
+        "`right_se`: binomial standard error. `wrong_term`: a term named that is not the "
+        "truth (for null: a false discovery). `over_budget`: stopped after "
+        f"{STEP_BUDGET:,} sampler steps without a verdict (counted as not right).",
         "",
         "## Threshold sweep (round 1 rederived from the recorded candidates, no refits)",
         "",

@@ -39,6 +39,7 @@ import pandas as pd
 from .commands import COMMAND_NAMES
 from .criticism import DiagnoseSettings, diagnose
 from .experiment import CommandSettings, Experiment, Robot
+from .sampler import ProgressInfo
 from .simulator import simulate
 
 __all__ = [
@@ -46,7 +47,10 @@ __all__ = [
     "EFFECT_RANGES",
     "LIBRARY_EFFECTS",
     "OUT_OF_LIBRARY",
+    "STEP_BUDGET",
     "Case",
+    "OverBudget",
+    "StepCounter",
     "diagnose_case",
     "diagnose_folder",
     "make_case",
@@ -70,6 +74,17 @@ OUT_OF_LIBRARY: dict[str, tuple[float, float]] = {
     "rate_stiffening": (0.30, 0.50),  # k x (1 + a (f - 10 Hz) / 10 Hz)
 }
 CASE_KINDS = ("null", *LIBRARY_EFFECTS, *OUT_OF_LIBRARY)
+
+#: Sampler steps per walker, summed over every fit, rerun and held-out refit of one case,
+#: after which the case is stopped and recorded with the verdict ``over_budget``. A step
+#: budget, not a wall-clock one, so the outcome does not depend on the machine. Healthy
+#: cases need about 4,000-12,000 (``benchmarks/calibrate_verdicts.py`` records every
+#: case's count); the cap is reached by a case whose posterior the ensembles cannot mix
+#: within ``diagnose``'s per-fit cap, where the rerun at twice the cap and every
+#: candidate and held-out refit would each run to the cap as well (tens of CPU-minutes to
+#: hours per case). Such a case gives no verdict within the budget; the study counts it
+#: as not right and reports how many there were.
+STEP_BUDGET = 60_000
 
 _PHI_C = 0.612
 _PHIS = (0.592, 0.597, 0.602, 0.607, 0.617, 0.622, 0.627, 0.632)
@@ -191,8 +206,43 @@ def make_case(kind: str, seed: int, trials: int = 3) -> Case:
     return Case(kind, experiment, table.drop(columns="true_height_mm"), truth)
 
 
+class OverBudget(RuntimeError):
+    """A case's diagnosis needed more sampler steps than its budget."""
+
+
+class StepCounter:
+    """``diagnose`` progress callback that counts sampler steps and enforces a budget.
+
+    Every fit run reports its steps per walker after each chunk under its own label; the
+    counter sums the increments over all labels (a label whose count falls is a new run).
+
+    Parameters
+    ----------
+    budget : int, optional
+        Steps after which :class:`OverBudget` is raised (None: count only).
+    """
+
+    def __init__(self, budget: int | None = None) -> None:
+        self.budget = budget
+        self.steps = 0
+        self._last: dict[str, int] = {}
+
+    def __call__(self, label: str, info: ProgressInfo) -> None:
+        """Add the steps of run ``label`` since its last report."""
+        last = self._last.get(label, 0)
+        self.steps += info.step - last if info.step >= last else info.step
+        self._last[label] = info.step
+        if self.budget is not None and self.steps > self.budget:
+            raise OverBudget(f"{self.steps} sampler steps > the budget of {self.budget}")
+
+
 def diagnose_case(
-    kind: str, index: int, config: DiagnoseSettings | None = None, *, seed: int
+    kind: str,
+    index: int,
+    config: DiagnoseSettings | None = None,
+    *,
+    seed: int,
+    step_budget: int | None = STEP_BUDGET,
 ) -> list[dict[str, Any]]:
     """Campaign task: make a case, run ``diagnose`` on it and record the outcome.
 
@@ -206,32 +256,60 @@ def diagnose_case(
         The rule and sampler settings under study.
     seed : int
         The task's seed: the case is drawn from it, and ``diagnose`` gets a spawned one.
+    step_budget : int, optional
+        Sampler steps (:data:`STEP_BUDGET`) after which the case is stopped and recorded
+        with the verdict ``over_budget`` (None: no budget).
 
     Returns
     -------
     list of dict
         One row: the truth summary, the verdict, what was added, the gains, the misfit
-        statistics and the round-1 candidates (JSON text) for :func:`rederive_verdicts`.
+        statistics, the round-1 candidates (JSON text) for :func:`rederive_verdicts`, the
+        sampler steps and the wall time [s].
     """
     case_seed, diag_seed = (
         int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(2)
     )
     case = make_case(kind, case_seed)
+    counter = StepCounter(step_budget)
+    truth = {
+        "kind": kind,
+        "index": int(index),
+        "truth_effect": "+".join(f"{k}={v:.4g}" for k, v in case.truth["effect"].items()),
+        "ool_strength": case.truth["out_of_library_strength"],
+        "sigma_mm": case.truth["sigma_mm"],
+        "phis": "/".join(f"{p:g}" for p in case.truth["phis"]),
+        "freqs_hz": "/".join(f"{f:g}" for f in case.truth["freqs_hz"]),
+    }
     t0 = time.perf_counter()
-    d = diagnose(case.experiment, case.table, config, seed=diag_seed, log=lambda *a, **k: None)
+    try:
+        d = diagnose(
+            case.experiment,
+            case.table,
+            config,
+            seed=diag_seed,
+            log=lambda *a, **k: None,
+            progress=counter,
+        )
+    except OverBudget:
+        return [
+            {
+                **truth,
+                "verdict": "over_budget",
+                "added": "",
+                "all_converged": False,
+                "round1": "[]",
+                "sampler_steps": counter.steps,
+                "wall_time_s": time.perf_counter() - t0,
+            }
+        ]
     rec = d.to_json()
     misfit = d.residuals_before
     round1 = [c for c in rec["candidates"] if c["round"] == 1]
     sel = rec["selected"]
     return [
         {
-            "kind": kind,
-            "index": int(index),
-            "truth_effect": "+".join(f"{k}={v:.4g}" for k, v in case.truth["effect"].items()),
-            "ool_strength": case.truth["out_of_library_strength"],
-            "sigma_mm": case.truth["sigma_mm"],
-            "phis": "/".join(f"{p:g}" for p in case.truth["phis"]),
-            "freqs_hz": "/".join(f"{f:g}" for f in case.truth["freqs_hz"]),
+            **truth,
             "verdict": rec["verdict"],
             "added": "+".join(sel["added"]),
             "elpd_gain": sel["elpd_gain"],
@@ -255,6 +333,7 @@ def diagnose_case(
                 c["method"].startswith("screened out") for c in rec["candidates"]
             ),
             "round1": _round1_json(round1),
+            "sampler_steps": counter.steps,
             "wall_time_s": time.perf_counter() - t0,
         }
     ]
@@ -370,6 +449,9 @@ def rederive_verdicts(
 
     out = []
     for r in results.itertuples():
+        if r.verdict == "over_budget":  # no decision was reached
+            out.append("")
+            continue
         if family_alpha is None:
             thr = r.z_threshold
         else:
@@ -420,7 +502,8 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
     ``right_se``; the fraction of each verdict; ``wrong_term`` (a library term named as
     the cause that is not the truth: for ``null`` any named term, for an out-of-library
     effect ``extended`` although misfit was left, which cannot happen by construction and
-    is a check); ``all_converged``; the median wall time per case.
+    is a check); ``over_budget`` (stopped at :data:`STEP_BUDGET`, counted as not right);
+    ``all_converged``; the median sampler steps and wall time per case.
 
     Parameters
     ----------
@@ -458,7 +541,11 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
                     for v in ("baseline_adequate", "extended", "misfit_remains")
                 },
                 "wrong_term": float(wrong_term.mean()),
+                "over_budget": float((g["verdict"] == "over_budget").mean()),
                 "all_converged": float(g["all_converged"].mean()),
+                "median_steps": float(g["sampler_steps"].median())
+                if "sampler_steps" in g
+                else np.nan,
                 "median_time_s": float(g["wall_time_s"].median()),
             }
         )

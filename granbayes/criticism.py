@@ -467,7 +467,8 @@ class FitBank:
         Progress messages.
     progress : callable, optional
         ``progress(label, info)`` after every sampler chunk of every fit; the label names
-        the law and the run (``"depth + drag, phi=0.602"``).
+        the law and the run (``"depth + drag, phi=0.602"``; reruns and held-out refits
+        say so in the law's part).
     """
 
     def __init__(
@@ -642,6 +643,7 @@ class FitBank:
                 seed=seed,
                 priors=self.priors,
                 warm_start=self.fits[key].datatree,
+                progress=self._progress(key, f" (held out, seed {seed})"),
             )
 
     def exact_loo(self, key: tuple[str, ...], points: Sequence[int]) -> dict[int, float]:

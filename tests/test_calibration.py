@@ -8,6 +8,7 @@ rule (screened-out candidates are never eligible), and the error rates are count
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -16,6 +17,9 @@ import pytest
 from granbayes.calibration import (
     CASE_KINDS,
     EFFECT_RANGES,
+    OverBudget,
+    StepCounter,
+    diagnose_case,
     make_case,
     rederive_verdicts,
     summarize,
@@ -111,3 +115,33 @@ def test_summarize_counts_right_answers_with_binomial_se() -> None:
     assert s.loc["drag", "right"] == 0.5 and s.loc["drag", "wrong_term"] == 0.5
     assert s.loc["pause_stiffening", "right"] == 1.0
     assert s.loc["pause_stiffening", "wrong_term"] == 0.0
+
+
+def test_step_counter_sums_runs_and_enforces_its_budget() -> None:
+    """Increments per run label are summed; a label whose count falls is a new run."""
+    counter = StepCounter(budget=500)
+    for label, step in [("a", 50), ("a", 100), ("b", 50), ("a", 150), ("b", 100)]:
+        counter(label, SimpleNamespace(step=step))
+    assert counter.steps == 250
+    counter("b", SimpleNamespace(step=50))  # a new run under the same label
+    assert counter.steps == 300
+    with pytest.raises(OverBudget, match="501 sampler steps > the budget of 500"):
+        counter("c", SimpleNamespace(step=201))
+    unlimited = StepCounter()
+    unlimited("a", SimpleNamespace(step=10**9))
+    assert unlimited.steps == 10**9
+
+
+def test_a_case_over_its_step_budget_is_recorded_without_a_verdict() -> None:
+    """The diagnosis stops at the budget; the row says so, names no term and counts as not
+    right; the rederived round 1 adds nothing for it."""
+    (row,) = diagnose_case("null", 0, seed=5, step_budget=120)
+    assert row["verdict"] == "over_budget" and row["added"] == ""
+    assert 120 < row["sampler_steps"] <= 120 + 50 and not row["all_converged"]
+    assert row["kind"] == "null" and row["sigma_mm"] > 0
+    rows = pd.DataFrame([row, _row("null", [], verdict="baseline_adequate")])
+    s = summarize(rows).set_index("kind")
+    assert s.loc["null", "right"] == 0.5 and s.loc["null", "over_budget"] == 0.5
+    assert s.loc["null", "wrong_term"] == 0.0
+    out = rederive_verdicts(rows, min_gain=4.0, se_factor=2.0, strong_gain=10.0, family_alpha=0.05)
+    assert out.tolist() == ["", ""]
