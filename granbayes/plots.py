@@ -1004,7 +1004,7 @@ def plot_delay_curves(
     loose = results[0]
     curves = delay_settings(loose, measured)
     cmap = colormaps["viridis"]
-    top = 0.0
+    top, bottom = 0.0, 0.0
     for j, spec in enumerate(curves):
         c = delay_curve(loose, spec["amplitude_mm"], spec["freq_hz"])
         color = cmap(0.1 + 0.75 * j / max(1, len(curves) - 1))
@@ -1012,6 +1012,8 @@ def plot_delay_curves(
         ax_l.fill_between(c["delay_ms"], c["lo_mm"], c["hi_mm"], color=color, alpha=0.18)
         ax_l.plot(c["delay_ms"], c["expected_mm"], color=color, marker="o", ms=3, label=label)
         top = max(top, float(np.nanmax(c["hi_mm"])))
+        # heights can be negative (the robot never left the bed): never clip them
+        bottom = min(bottom, float(np.nanmin(c["lo_mm"])), float(np.nanmin(c["expected_mm"])))
     if loose.family_optimum["single"] >= 0:
         single = loose.settings.iloc[loose.family_optimum["single"]]
         ax_l.axhspan(single["lo_mm"], single["hi_mm"], color="0.5", alpha=0.15, lw=0)
@@ -1026,7 +1028,7 @@ def plot_delay_curves(
     ax_l.axvline(PUBLISHED_DELAY_MS, color="k", ls=":", lw=1, label="published optimum, 50 ms")
     ax_l.set_title(f"loosest bed φ = {loose.phi:g}: delayed stutter", fontsize=10)
     if top > 0:
-        ax_l.set_ylim(0.0, 1.4 * top)
+        ax_l.set_ylim(bottom - 0.05 * (top - bottom), 1.4 * top)
     ax_l.legend(fontsize=8, loc="upper right")
     for j, res in enumerate(results):
         if res.family_optimum["delayed_stutter"] < 0:

@@ -8,6 +8,7 @@ labelled so in their ``source`` column).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -241,6 +242,10 @@ def test_settings_grid_contains_the_measured_settings() -> None:
     assert optimal.describe_setting(rec) == "12.5 Hz, 20 mm, 1-period hold (= 80 ms)"
 
 
+#: Columns that name a delayed-stutter curve (amplitude [mm], frequency [Hz]).
+AF = ("amplitude_mm", "freq_hz")
+
+
 def test_search_finds_the_best_setting_for_common_draws(rng: np.random.Generator) -> None:
     dt = posterior_tree(rng, n=10)
     grid = optimal.settings_grid(measured(), 20.0, coarse=True)
@@ -266,6 +271,15 @@ def test_search_finds_the_best_setting_for_common_draws(rng: np.random.Generator
         plots.plot_optimum_vs_phi([res, res], PHI_C, "SYNTHETIC"),
     ):
         assert isinstance(fig, Figure)
+    # the left panel of the delay curves shows negative heights (robot stays in the bed)
+    t = res.settings
+    sunk = dataclasses.replace(
+        res, settings=t.assign(**{c: t[c] - 40.0 for c in ("expected_mm", "lo_mm", "hi_mm")})
+    )
+    ax_left = plots.plot_delay_curves([sunk], measured(), PHI_C, "SYNTHETIC").axes[0]
+    curve = optimal.delay_curve(sunk, *[sunk.settings.iloc[sunk.optimum][c] for c in AF])
+    assert curve["lo_mm"].min() < 0.0
+    assert ax_left.get_ylim()[0] <= curve["lo_mm"].min()
 
 
 def test_draws_at_refuses_a_posterior_without_sigma(rng: np.random.Generator) -> None:
