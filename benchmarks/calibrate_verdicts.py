@@ -2,9 +2,10 @@
 
 Runs :func:`granbayes.calibration.diagnose_case` on SYNTHETIC data sets (robot, noise,
 design and effect size drawn per case; ``granbayes.calibration`` documents the ranges) as a
-Dask campaign (``granbayes.campaign``): by default 40 null cases, 10 per library term and
-10 per out-of-library effect. Each finished case is written at once, so the study runs in
-parts: rerun with ``--resume`` and only the missing cases are computed.
+Dask campaign (``granbayes.campaign``): by default 60 null cases (none of 60 naming a term
+bounds the false-discovery rate below 5% at one-sided 95% confidence; 40 cannot), 10 per
+library term and 10 per out-of-library effect. Each finished case is written at once, so
+the study runs in parts: rerun with ``--resume`` and only the missing cases are computed.
 
 Writes into OUT (default ``docs/verdicts``):
 
@@ -40,6 +41,7 @@ from granbayes.calibration import (
     LIBRARY_EFFECTS,
     OUT_OF_LIBRARY,
     STEP_BUDGET,
+    clopper_pearson,
     diagnose_case,
     rederive_verdicts,
     summarize,
@@ -105,12 +107,34 @@ def sweep(results: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def gain_honesty(results: pd.DataFrame) -> dict[str, float] | None:
+    """In-sample ELPD gain against the leave-one-cell-out gain over the extended cases."""
+    ext = results[(results["verdict"] != "over_budget") & (results["added"] != "")]
+    if ext.empty:
+        return None
+    g, gc = ext["elpd_gain"].astype(float), ext["elpd_gain_cells"].astype(float)
+    return {
+        "n": len(ext),
+        "median_gain_nats": float(g.median()),
+        "median_gain_cells_nats": float(gc.median()),
+        "median_ratio_cells_to_in_sample": float((gc / g).median()),
+        "fraction_cells_gain_below_in_sample": float((gc < g).mean()),
+        "fraction_cells_gain_positive": float((gc > 0).mean()),
+        "fraction_cells_gain_above_2se": float(
+            (gc > 2 * ext["elpd_gain_cells_se"].astype(float)).mean()
+        ),
+    }
+
+
 def figure(summary: pd.DataFrame) -> Figure:
-    """Right-answer rate per case kind with binomial 1-SE bars."""
+    """Right-answer rate per case kind with exact (Clopper-Pearson) 95% interval bars."""
     fig = Figure(figsize=(8.0, 3.6), layout="constrained")
     ax = fig.subplots()
     x = np.arange(len(summary))
-    ax.bar(x, summary["right"], yerr=summary["right_se"], color="tab:blue", capsize=3)
+    err = np.vstack(
+        [summary["right"] - summary["right_lo95"], summary["right_hi95"] - summary["right"]]
+    )
+    ax.bar(x, summary["right"], yerr=err, color="tab:blue", capsize=3)
     ax.axhline(0.95, color="grey", lw=0.8, ls="--", label="95%")
     ax.set_xticks(x, summary["kind"], rotation=30, ha="right")
     ax.set_ylim(0, 1.05)
@@ -118,7 +142,7 @@ def figure(summary: pd.DataFrame) -> Figure:
     ax.set_title(
         "SYNTHETIC data (granbayes.calibration): diagnose's verdicts by hidden truth\n"
         "null: baseline_adequate; term: extended with that term; out-of-library: "
-        "misfit_remains or no misfit left",
+        "misfit_remains or no misfit left; bars: exact 95% intervals",
         fontsize=8,
     )
     ax.legend(fontsize=8)
@@ -136,6 +160,18 @@ def write_summary(
     summary = summarize(results)
     swept = sweep(results)
     null = summary[summary["kind"] == "null"]
+    null_rows = results[results["kind"] == "null"]
+    n_null = len(null_rows)
+    # one-sided 95% upper bounds = upper limits of the two-sided 90% exact intervals
+    fdr_upper = (
+        clopper_pearson(int((null_rows["added"] != "").sum()), n_null, 0.90)[1] if n_null else None
+    )
+    alarm_upper = (
+        clopper_pearson(int((null_rows["verdict"] != "baseline_adequate").sum()), n_null, 0.90)[1]
+        if n_null
+        else None
+    )
+    gains = gain_honesty(results)
     doc = {
         "seed": seed,
         "granbayes": __version__,
@@ -150,6 +186,9 @@ def write_summary(
         # a discovery is a named term; a false alarm is any verdict but baseline_adequate
         "false_discovery_rate": None if null.empty else float(null["wrong_term"].iloc[0]),
         "false_alarm_rate": None if null.empty else 1.0 - float(null["right"].iloc[0]),
+        "false_discovery_upper95": fdr_upper,
+        "false_alarm_upper95": alarm_upper,
+        "gain_in_sample_vs_cells": gains,
         "n_over_budget": int((results["verdict"] == "over_budget").sum()),
         "step_budget": STEP_BUDGET,
         "per_kind": summary.to_dict("records"),
@@ -183,6 +222,23 @@ def write_summary(
         "`right_se`: binomial standard error. `wrong_term`: a term named that is not the "
         "truth (for null: a false discovery). `over_budget`: stopped after "
         f"{STEP_BUDGET:,} sampler steps without a verdict (counted as not right).",
+        "",
+        "`right_lo95`, `right_hi95`: exact (Clopper-Pearson) 95% interval of `right`.",
+        "",
+        f"False-discovery rate (a term named on null data): {doc['false_discovery_rate']:.3f}, "
+        f"one-sided 95% upper bound {fdr_upper:.3f}; false-alarm rate (any verdict but "
+        f"baseline_adequate): {doc['false_alarm_rate']:.3f}, upper bound {alarm_upper:.3f} "
+        f"({n_null} null cases)."
+        if n_null
+        else "No null case finished.",
+        "",
+        "## Honest gain: in-sample against leave-one-cell-out",
+        "",
+        "Over the cases where a term was added: the selected law's ELPD gain over the "
+        "baseline estimated on the data used for selection (PSIS-LOO over jumps) and by "
+        "leaving out one cell (a command at one setting) at a time.",
+        "",
+        markdown_table(pd.DataFrame([gains]), ".3g") if gains else "No case added a term.",
         "",
         "## Threshold sweep (round 1 rederived from the recorded candidates, no refits)",
         "",
@@ -218,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "verdicts")
     parser.add_argument("--seed", type=int, default=SEED)
-    parser.add_argument("--null", type=int, default=40, help="null cases (default 40)")
+    parser.add_argument("--null", type=int, default=60, help="null cases (default 60)")
     parser.add_argument("--per-term", type=int, default=10, help="cases per effect (10)")
     parser.add_argument("--kinds", default=",".join(CASE_KINDS), help="kinds to run")
     parser.add_argument("--workers", type=int, help="local Dask workers (default: cores)")

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 
 from .commands import COMMAND_NAMES
 from .criticism import DiagnoseSettings, diagnose
@@ -53,6 +54,7 @@ __all__ = [
     "StepCounter",
     "diagnose_case",
     "diagnose_folder",
+    "clopper_pearson",
     "make_case",
     "rederive_verdicts",
     "summarize",
@@ -493,13 +495,36 @@ def _dof(row) -> float:
     return float(optimize.brentq(lambda v: stats.t.isf(q, v) - row.z_threshold, 0.5, 1e6))
 
 
+def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Exact two-sided binomial confidence interval for ``k`` successes in ``n`` trials.
+
+    Parameters
+    ----------
+    k, n : int
+        Successes and trials (``0 <= k <= n``, ``n >= 1``).
+    level : float, default 0.95
+        Confidence level.
+
+    Returns
+    -------
+    tuple of float
+        Lower and upper limit (0 and 1 at the edges).
+    """
+    a = 1.0 - level
+    lo = 0.0 if k == 0 else float(stats.beta.ppf(a / 2, k, n - k + 1))
+    hi = 1.0 if k == n else float(stats.beta.ppf(1 - a / 2, k + 1, n - k))
+    return lo, hi
+
+
 def summarize(results: pd.DataFrame) -> pd.DataFrame:
     """Error rates per case kind, with binomial standard errors.
 
     Columns: ``kind``, ``n``, ``right`` (the fraction of right answers: ``baseline_adequate``
     for ``null``, ``extended`` with exactly the hidden term for a library term,
     ``misfit_remains`` or a law leaving no misfit for an out-of-library effect) and its
-    ``right_se``; the fraction of each verdict; ``wrong_term`` (a library term named as
+    ``right_se`` and its exact (Clopper-Pearson) 95% interval ``right_lo95``,
+    ``right_hi95`` (the binomial SE is 0 when every answer is right, the interval is not);
+    the fraction of each verdict; ``wrong_term`` (a library term named as
     the cause that is not the truth: for ``null`` any named term, for an out-of-library
     effect ``extended`` although misfit was left, which cannot happen by construction and
     is a check); ``over_budget`` (stopped at :data:`STEP_BUDGET`, counted as not right);
@@ -530,12 +555,15 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
             )
             wrong_term = (g["verdict"] == "extended") & (g["n_residual_misfit"] > 0)
         p = float(right.mean())
+        lo, hi = clopper_pearson(int(right.sum()), n)
         rows.append(
             {
                 "kind": kind,
                 "n": n,
                 "right": p,
                 "right_se": float(np.sqrt(p * (1 - p) / n)),
+                "right_lo95": lo,
+                "right_hi95": hi,
                 **{
                     f"verdict_{v}": float((g["verdict"] == v).mean())
                     for v in ("baseline_adequate", "extended", "misfit_remains")

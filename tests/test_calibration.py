@@ -19,6 +19,7 @@ from granbayes.calibration import (
     EFFECT_RANGES,
     OverBudget,
     StepCounter,
+    clopper_pearson,
     diagnose_case,
     make_case,
     rederive_verdicts,
@@ -115,6 +116,20 @@ def test_summarize_counts_right_answers_with_binomial_se() -> None:
     assert s.loc["drag", "right"] == 0.5 and s.loc["drag", "wrong_term"] == 0.5
     assert s.loc["pause_stiffening", "right"] == 1.0
     assert s.loc["pause_stiffening", "wrong_term"] == 0.0
+    # every answer right: the SE is 0, the exact interval is not
+    assert s.loc["pause_stiffening", "right_se"] == 0.0
+    assert s.loc["pause_stiffening", "right_lo95"] == pytest.approx(0.025 ** (1 / 2))
+
+
+def test_clopper_pearson_matches_closed_forms_and_brackets_the_rate() -> None:
+    """At the edges the exact interval has closed forms: no success in n gives the upper
+    limit 1 - (alpha/2)^(1/n) (0 of 60 bounds a rate below 5% at one-sided 95%)."""
+    assert clopper_pearson(0, 60) == (0.0, pytest.approx(1 - 0.025 ** (1 / 60)))
+    assert clopper_pearson(0, 60, 0.90)[1] == pytest.approx(1 - 0.05 ** (1 / 60))
+    assert clopper_pearson(0, 60, 0.90)[1] < 0.05 < clopper_pearson(0, 40, 0.90)[1]
+    assert clopper_pearson(10, 10)[0] == pytest.approx(0.025 ** (1 / 10))
+    lo, hi = clopper_pearson(4, 10)
+    assert lo < 0.4 < hi and lo == pytest.approx(0.1216, abs=1e-4)
 
 
 def test_step_counter_sums_runs_and_enforces_its_budget() -> None:
