@@ -38,6 +38,7 @@ from matplotlib.figure import Figure
 from granbayes import __version__
 from granbayes.calibration import (
     CASE_KINDS,
+    DESIGN_RANGES,
     LIBRARY_EFFECTS,
     OUT_OF_LIBRARY,
     STEP_BUDGET,
@@ -300,6 +301,7 @@ def main(argv: list[str] | None = None) -> int:
         "seed": args.seed,
         "rule": [config.min_gain, config.se_factor, config.strong_gain, config.family_alpha],
         "out_of_library": list(OUT_OF_LIBRARY),
+        "design": DESIGN_RANGES,
     }
     result = run_campaign(
         todo,

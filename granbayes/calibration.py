@@ -17,13 +17,13 @@ a library term (``drag``, ``added_mass``, ``stiffening``, ``viscous``, ``compact
     frequency. No term of the library does either; the right answer is
     ``misfit_remains``, or a law that truly leaves no misfit (both are recorded).
 
-Every case draws its robot, noise level, design (volume fractions, frequencies) and
-effect size from documented ranges with its own seed, so the study measures the rule
-over a population of plausible experiments, not one. :func:`diagnose_case` is the campaign
-task (``granbayes.campaign``); each row records enough (every candidate's gain and SE,
-the baseline's misfit statistics) for :func:`rederive_verdicts` to recompute the round-1
-decision under other thresholds without refitting, which is how the rule's thresholds are
-chosen.
+Every case draws its robot, noise level, design (volume fractions, frequencies, repeated
+jumps per cell; :data:`DESIGN_RANGES`) and effect size from documented ranges with its own
+seed, so the study measures the rule over a population of plausible experiments, not one.
+:func:`diagnose_case` is the campaign task (``granbayes.campaign``); each row records
+enough (every candidate's gain and SE, the baseline's misfit statistics) for
+:func:`rederive_verdicts` to recompute the round-1 decision under other thresholds without
+refitting, which is how the rule's thresholds are chosen.
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ from .simulator import simulate
 
 __all__ = [
     "CASE_KINDS",
+    "DESIGN_RANGES",
     "EFFECT_RANGES",
     "LIBRARY_EFFECTS",
     "OUT_OF_LIBRARY",
@@ -91,6 +92,17 @@ STEP_BUDGET = 60_000
 _PHI_C = 0.612
 _PHIS = (0.592, 0.597, 0.602, 0.607, 0.617, 0.622, 0.627, 0.632)
 _FREQS_HZ = (7.0, 8.0, 10.0, 12.0)
+_TRIALS = (2, 3, 4)
+#: What a case's design and noise are drawn from (part of the study's fingerprint, so a
+#: study cannot be resumed with cases drawn otherwise): two volume fractions, two
+#: actuation frequencies [Hz], repeated jumps per cell, trial-to-trial scatter [mm].
+DESIGN_RANGES: dict[str, Any] = {
+    "phis": _PHIS,
+    "freqs_hz": _FREQS_HZ,
+    "trials": _TRIALS,
+    "sigma_mm": (1.5, 3.0),
+    "amplitude_mm": (16.0, 20.0),
+}
 _HELD = ("delayed_stutter", "delayed_stutter_preload")
 
 
@@ -125,7 +137,7 @@ def _k_law(rng: np.random.Generator) -> tuple[float, float, float]:
     )
 
 
-def make_case(kind: str, seed: int, trials: int = 3) -> Case:
+def make_case(kind: str, seed: int, trials: int | None = None) -> Case:
     """A SYNTHETIC data set of the given kind (module docstring), drawn from ``seed``.
 
     Parameters
@@ -134,8 +146,8 @@ def make_case(kind: str, seed: int, trials: int = 3) -> Case:
         One of :data:`CASE_KINDS`.
     seed : int
         Seed of everything drawn (robot, noise, design, effect, scatter).
-    trials : int
-        Repeated jumps per cell.
+    trials : int, optional
+        Repeated jumps per cell; drawn from 2, 3 or 4 (after the scatter) if not given.
 
     Returns
     -------
@@ -157,6 +169,8 @@ def make_case(kind: str, seed: int, trials: int = 3) -> Case:
     phis = tuple(sorted(float(p) for p in rng.choice(_PHIS, size=2, replace=False)))
     freqs = tuple(sorted(float(f) for f in rng.choice(_FREQS_HZ, size=2, replace=False)))
     sigma_mm = float(rng.uniform(1.5, 3.0))
+    if trials is None:
+        trials = int(rng.choice(_TRIALS))
     k0, k1, k2 = _k_law(rng)
     effect: dict[str, float] = {}
     strength = 0.0
@@ -201,6 +215,7 @@ def make_case(kind: str, seed: int, trials: int = 3) -> Case:
         "phis": list(phis),
         "freqs_hz": list(freqs),
         "sigma_mm": sigma_mm,
+        "trials": trials,
         "k_law": [k0, k1, k2],
         "effect": effect,
         "out_of_library_strength": strength,
@@ -282,6 +297,7 @@ def diagnose_case(
         "sigma_mm": case.truth["sigma_mm"],
         "phis": "/".join(f"{p:g}" for p in case.truth["phis"]),
         "freqs_hz": "/".join(f"{f:g}" for f in case.truth["freqs_hz"]),
+        "trials": case.truth["trials"],
     }
     t0 = time.perf_counter()
     try:

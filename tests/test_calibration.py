@@ -16,6 +16,7 @@ import pytest
 
 from granbayes.calibration import (
     CASE_KINDS,
+    DESIGN_RANGES,
     EFFECT_RANGES,
     OverBudget,
     StepCounter,
@@ -40,6 +41,20 @@ def test_cases_are_deterministic_and_labelled(kind: str) -> None:
         assert lo <= a.truth["effect"][name] <= hi
     else:
         assert a.truth["effect"] == {}
+
+
+def test_the_number_of_trials_is_part_of_the_drawn_design() -> None:
+    """Without ``trials`` the case draws it (2, 3 or 4 per cell) from its seed; over 30
+    seeds every allowed value occurs (a miss has probability 3 x (2/3)^30 = 2e-5)."""
+    drawn = []
+    for seed in range(30):
+        case = make_case("null", seed)
+        n = case.truth["trials"]
+        assert n in DESIGN_RANGES["trials"]
+        assert (case.table.groupby(["phi", "freq_hz", "command"]).size() == n).all()
+        assert make_case("null", seed).truth["trials"] == n
+        drawn.append(n)
+    assert set(drawn) == set(DESIGN_RANGES["trials"])
 
 
 def test_unknown_kind_is_refused() -> None:

@@ -151,7 +151,7 @@ def test_two_frequencies_separate_drag_from_viscous(truth: str, rival: str) -> N
 @pytest.mark.parametrize("effect", [pytest.param(e, marks=_marks(e)) for e in OUT_OF_LIBRARY])
 def test_effect_outside_the_library_is_not_blamed_on_a_term(effect: str) -> None:
     """The library cannot explain it: misfit_remains, or a law that leaves no misfit."""
-    case = make_case(effect, seed=7)
+    case = make_case(effect, seed=7, trials=3)
     d = diagnose(case.experiment, case.table, CONFIG, seed=5, log=lambda *a, **k: None)
     rec = d.to_json()
     print(effect, rec["verdict"], rec["selected"]["added"], len(rec["residual_misfit"]))
