@@ -35,7 +35,9 @@ the current law shows misfit or the gain exceeds ``strong_gain`` nats.
 The gain is also reported as a leave-one-*cell*-out estimate (PSIS over the summed
 log-likelihood of each cell): how much better the selected law predicts a setting it has
 not seen. It is computed on the data used for selection, so it is still optimistic about
-the choice among candidates; the calibration study measures that bias.
+the choice among candidates; the calibration study (``docs/verdicts/summary.md``) reports
+both estimates for every case that added a term, and the false-discovery rate on null data
+is what bounds the cost of that optimism at the threshold.
 """
 
 from __future__ import annotations
