@@ -108,45 +108,123 @@ def sweep(results: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def gain_honesty(results: pd.DataFrame) -> dict[str, float] | None:
-    """In-sample ELPD gain against the leave-one-cell-out gain over the extended cases."""
-    ext = results[(results["verdict"] != "over_budget") & (results["added"] != "")]
-    if ext.empty:
+def gain_honesty(results: pd.DataFrame) -> pd.DataFrame | None:
+    """The reported gain against the gain on a new run of the same experiment.
+
+    Over the cases where a term was added: the selected law's ELPD gain over the baseline
+    as ``diagnose`` reports it (PSIS-LOO over jumps, and leaving out one cell at a time),
+    both computed on the data used for selection, against the log predictive density
+    gain the two fitted laws achieve on an independent repetition of the experiment
+    (same truth and design, new noise: ``gain_fresh``), which no selection has seen.
+    """
+    ext = results[(results["verdict"] != "over_budget") & (results["added"].fillna("") != "")]
+    if ext.empty or "gain_fresh" not in ext:
         return None
-    g, gc = ext["elpd_gain"].astype(float), ext["elpd_gain_cells"].astype(float)
-    return {
-        "n": len(ext),
-        "median_gain_nats": float(g.median()),
-        "median_gain_cells_nats": float(gc.median()),
-        "median_ratio_cells_to_in_sample": float((gc / g).median()),
-        "fraction_cells_gain_below_in_sample": float((gc < g).mean()),
-        "fraction_cells_gain_positive": float((gc > 0).mean()),
-        "fraction_cells_gain_above_2se": float(
-            (gc > 2 * ext["elpd_gain_cells_se"].astype(float)).mean()
-        ),
-    }
+    g, gc, gf = (ext[c].astype(float) for c in ("elpd_gain", "elpd_gain_cells", "gain_fresh"))
+    rows = []
+    for label, est in (("PSIS-LOO over jumps", g), ("leave one cell out", gc)):
+        rows.append(
+            {
+                "estimate": label,
+                "n": len(ext),
+                "median_estimate_nats": float(est.median()),
+                "median_fresh_nats": float(gf.median()),
+                "median_estimate_minus_fresh": float((est - gf).median()),
+                "mean_estimate_minus_fresh": float((est - gf).mean()),
+                "se_of_mean": float((est - gf).std(ddof=1) / np.sqrt(len(ext))),
+                "fraction_estimate_above_fresh": float((est > gf).mean()),
+            }
+        )
+    rows.append(
+        {
+            "estimate": "fresh data, gain > 0",
+            "n": len(ext),
+            "median_estimate_nats": float(gf.median()),
+            "median_fresh_nats": float(gf.median()),
+            "median_estimate_minus_fresh": 0.0,
+            "mean_estimate_minus_fresh": 0.0,
+            "se_of_mean": 0.0,
+            "fraction_estimate_above_fresh": float((gf > 0).mean()),
+        }
+    )
+    return pd.DataFrame(rows)
 
 
-def figure(summary: pd.DataFrame) -> Figure:
-    """Right-answer rate per case kind with exact (Clopper-Pearson) 95% interval bars."""
-    fig = Figure(figsize=(8.0, 3.6), layout="constrained")
+#: Outcomes of a case, in the order they are stacked in the figure, and their colours.
+OUTCOMES = {
+    "right": "tab:green",
+    "right, with an indistinguishable term": "yellowgreen",
+    "not detected": "lightgrey",
+    "wrong term, truth reported as indistinguishable": "tab:orange",
+    "false claim": "tab:red",
+    "misfit_remains (library truth) / false alarm (null)": "tab:purple",
+    "over budget": "black",
+}
+
+
+def outcome(row) -> str:
+    """One case's outcome (:data:`OUTCOMES`)."""
+    added = row.added if isinstance(row.added, str) else ""
+    ties = getattr(row, "indistinguishable", "")
+    ties = ties.split("+") if isinstance(ties, str) and ties else []
+    if row.verdict == "over_budget":
+        return "over budget"
+    if row.kind == "null":
+        if added:
+            return "false claim"
+        return "right" if row.verdict == "baseline_adequate" else OUTCOME_MISFIT
+    if row.kind in LIBRARY_EFFECTS:
+        if added == row.kind and row.verdict == "extended":
+            return "right" if not ties else "right, with an indistinguishable term"
+        if added and added != row.kind:
+            if row.kind in ties:
+                return "wrong term, truth reported as indistinguishable"
+            return "false claim"
+        return "not detected" if row.verdict == "baseline_adequate" else OUTCOME_MISFIT
+    # out of the library
+    if row.verdict == "misfit_remains" or (
+        row.verdict == "extended" and row.n_residual_misfit == 0
+    ):
+        return "right" if not ties else "right, with an indistinguishable term"
+    if row.verdict == "extended":
+        return "false claim"
+    return "not detected"
+
+
+OUTCOME_MISFIT = "misfit_remains (library truth) / false alarm (null)"
+
+
+def figure(results: pd.DataFrame, summary: pd.DataFrame) -> Figure:
+    """Outcomes per case kind (stacked fractions) with the right-answer rate's 95% interval."""
+    fig = Figure(figsize=(9.0, 4.4), layout="constrained")
     ax = fig.subplots()
-    x = np.arange(len(summary))
+    kinds = list(summary["kind"])
+    labels = results.apply(outcome, axis=1)
+    x = np.arange(len(kinds))
+    bottom = np.zeros(len(kinds))
+    for name, colour in OUTCOMES.items():
+        frac = np.array([float((labels[results["kind"] == k] == name).mean()) for k in kinds])
+        if not frac.any():
+            continue
+        ax.bar(x, frac, bottom=bottom, color=colour, label=name, edgecolor="white", lw=0.5)
+        bottom += frac
     err = np.vstack(
         [summary["right"] - summary["right_lo95"], summary["right_hi95"] - summary["right"]]
     )
-    ax.bar(x, summary["right"], yerr=err, color="tab:blue", capsize=3)
-    ax.axhline(0.95, color="grey", lw=0.8, ls="--", label="95%")
-    ax.set_xticks(x, summary["kind"], rotation=30, ha="right")
-    ax.set_ylim(0, 1.05)
-    ax.set_ylabel("right verdict [fraction]")
+    ax.errorbar(
+        x, summary["right"], yerr=err, fmt="_", color="k", capsize=3, label="right: exact 95% CI"
+    )
+    n = dict(zip(summary["kind"], summary["n"], strict=True))
+    ax.set_xticks(x, [f"{k}\n(n={n[k]})" for k in kinds], rotation=30, ha="right", fontsize=8)
+    ax.set_ylim(0, 1.02)
+    ax.set_ylabel("fraction of cases")
     ax.set_title(
-        "SYNTHETIC data (granbayes.calibration): diagnose's verdicts by hidden truth\n"
-        "null: baseline_adequate; term: extended with that term; out-of-library: "
-        "misfit_remains or no misfit left; bars: exact 95% intervals",
+        "SYNTHETIC data (granbayes.calibration, benchmarks/calibrate_verdicts.py): what "
+        "diagnose concluded, by hidden truth\nnull: right = baseline_adequate; library term: "
+        "extended with that term; outside the library: misfit_remains or no misfit left",
         fontsize=8,
     )
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return fig
 
 
@@ -158,6 +236,8 @@ def write_summary(
     n_planned: int | None = None,
 ) -> None:
     """summary.md, summary.json, rates.png from the tidy results."""
+    results = results.copy()
+    results["added"] = results["added"].fillna("")
     summary = summarize(results)
     swept = sweep(results)
     null = summary[summary["kind"] == "null"]
@@ -173,6 +253,11 @@ def write_summary(
         else None
     )
     gains = gain_honesty(results)
+    lib_rows = results[results["kind"].isin(LIBRARY_EFFECTS)]
+    lib_false = int(
+        sum(outcome(r) == "false claim" for r in lib_rows.itertuples()) if len(lib_rows) else 0
+    )
+    lib_false_upper = clopper_pearson(lib_false, len(lib_rows), 0.90)[1] if len(lib_rows) else None
     doc = {
         "seed": seed,
         "granbayes": __version__,
@@ -189,7 +274,10 @@ def write_summary(
         "false_alarm_rate": None if null.empty else 1.0 - float(null["right"].iloc[0]),
         "false_discovery_upper95": fdr_upper,
         "false_alarm_upper95": alarm_upper,
-        "gain_in_sample_vs_cells": gains,
+        "false_claims_library_terms": lib_false,
+        "n_library_term_cases": len(lib_rows),
+        "false_claim_library_upper95": lib_false_upper,
+        "gain_reported_vs_fresh": None if gains is None else gains.to_dict("records"),
         "n_over_budget": int((results["verdict"] == "over_budget").sum()),
         "step_budget": STEP_BUDGET,
         "per_kind": summary.to_dict("records"),
@@ -220,11 +308,14 @@ def write_summary(
         "",
         "`right`: null -> baseline_adequate; a library term -> extended with exactly that "
         "term; out-of-library -> misfit_remains or a law that leaves no misfit. "
-        "`right_se`: binomial standard error. `wrong_term`: a term named that is not the "
-        "truth (for null: a false discovery). `over_budget`: stopped after "
+        "`right_se`: binomial standard error; `right_lo95`, `right_hi95`: exact "
+        "(Clopper-Pearson) 95% interval. `right_alone`: right, and no other term reported as "
+        "indistinguishable from the named one. `ambiguous`: a term was reported as "
+        "indistinguishable from an added one (`diagnosis.json` "
+        "`selected.indistinguishable`). `wrong_term`: a term named that is not the truth "
+        "(for null: a false discovery). `false_claim`: a wrong term named without the truth "
+        "reported as indistinguishable from it. `over_budget`: stopped after "
         f"{STEP_BUDGET:,} sampler steps without a verdict (counted as not right).",
-        "",
-        "`right_lo95`, `right_hi95`: exact (Clopper-Pearson) 95% interval of `right`.",
         "",
         f"False-discovery rate (a term named on null data): {doc['false_discovery_rate']:.3f}, "
         f"one-sided 95% upper bound {fdr_upper:.3f}; false-alarm rate (any verdict but "
@@ -233,13 +324,24 @@ def write_summary(
         if n_null
         else "No null case finished.",
         "",
-        "## Honest gain: in-sample against leave-one-cell-out",
+        f"False claims with a library term hidden (a wrong term named, the truth not reported "
+        f"as indistinguishable): {lib_false} of {len(lib_rows)}, one-sided 95% upper bound "
+        f"{lib_false_upper:.3f}."
+        if len(lib_rows)
+        else "",
+        "",
+        "## Honest gain: the reported gain against fresh data",
         "",
         "Over the cases where a term was added: the selected law's ELPD gain over the "
-        "baseline estimated on the data used for selection (PSIS-LOO over jumps) and by "
-        "leaving out one cell (a command at one setting) at a time.",
+        "baseline as diagnose reports it, estimated on the data used for selection (PSIS-LOO "
+        "over jumps; leaving out one cell, a command at one setting, at a time), against "
+        "the log predictive density gain of the same two fitted laws on an independent "
+        "repetition of the experiment (same truth and design, new noise), which the "
+        "selection never saw. A positive `estimate_minus_fresh` is optimism [nats].",
         "",
-        markdown_table(pd.DataFrame([gains]), ".3g") if gains else "No case added a term.",
+        markdown_table(gains, ".3g")
+        if gains is not None
+        else "No case added a term (or the results predate the fresh-data score).",
         "",
         "## Threshold sweep (round 1 rederived from the recorded candidates, no refits)",
         "",
@@ -248,7 +350,7 @@ def write_summary(
         "![rates](rates.png)",
     ]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    figure(summary).savefig(out / "rates.png", dpi=130)
+    figure(results, summary).savefig(out / "rates.png", dpi=130)
 
 
 def summarize_finished(out: Path, n_planned: int, config, seed: int) -> int:
@@ -300,6 +402,8 @@ def main(argv: list[str] | None = None) -> int:
         "kind": "granbayes.calibration",
         "seed": args.seed,
         "rule": [config.min_gain, config.se_factor, config.strong_gain, config.family_alpha],
+        # version 2: indistinguishable terms reported, the gain scored on fresh data
+        "study_version": 2,
         "out_of_library": list(OUT_OF_LIBRARY),
         "design": DESIGN_RANGES,
     }

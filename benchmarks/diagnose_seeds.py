@@ -49,6 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     table.to_csv(HERE / "results" / "diagnose_seeds.csv", index=False)
     shown = table.drop(columns=["candidates"])
     same = table["verdict"].nunique() == 1 and table["added"].nunique() == 1
+    same_claim = table["verdict"].nunique() == 1 and table["claim"].nunique() == 1
     lines = [
         "# `diagnose` on the SYNTHETIC reference data with different seeds",
         "",
@@ -59,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
         "",
         markdown_table(shown, ".3g"),
         "",
-        f"Same verdict and terms for every seed: {same}.",
+        f"Same verdict and terms for every seed: {same}. Same claim (each round's added "
+        f"term with the terms it is not distinguished from, `claim`): {same_claim}.",
     ]
     (HERE / "results" / "diagnose_seeds.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -137,7 +137,7 @@ def _k_law(rng: np.random.Generator) -> tuple[float, float, float]:
     )
 
 
-def make_case(kind: str, seed: int, trials: int | None = None) -> Case:
+def make_case(kind: str, seed: int, trials: int | None = None, replicate: int = 0) -> Case:
     """A SYNTHETIC data set of the given kind (module docstring), drawn from ``seed``.
 
     Parameters
@@ -148,6 +148,10 @@ def make_case(kind: str, seed: int, trials: int | None = None) -> Case:
         Seed of everything drawn (robot, noise, design, effect, scatter).
     trials : int, optional
         Repeated jumps per cell; drawn from 2, 3 or 4 (after the scatter) if not given.
+    replicate : int, default 0
+        0: the case itself. ``r > 0``: an independent repetition of the same experiment
+        (same robot, design, truth and scatter; new noise from the stream ``(seed, r)``),
+        on which a fitted law's predictions are scored out of sample.
 
     Returns
     -------
@@ -207,8 +211,11 @@ def make_case(kind: str, seed: int, trials: int | None = None) -> Case:
                         }
                     )
     table = pd.DataFrame(rows)
-    table["height_mm"] = table["true_height_mm"] + rng.normal(0.0, sigma_mm, len(table))
-    table["source"] = f"synthetic: granbayes.calibration kind={kind} seed={seed}"
+    noise = rng if replicate == 0 else np.random.default_rng([seed, replicate])
+    table["height_mm"] = table["true_height_mm"] + noise.normal(0.0, sigma_mm, len(table))
+    table["source"] = f"synthetic: granbayes.calibration kind={kind} seed={seed}" + (
+        f" replicate={replicate}" if replicate else ""
+    )
     truth = {
         "robot": dataclasses.asdict(robot),
         "amplitude_mm": amplitude_mm,
@@ -325,15 +332,24 @@ def diagnose_case(
     misfit = d.residuals_before
     round1 = [c for c in rec["candidates"] if c["round"] == 1]
     sel = rec["selected"]
+    # the selected law against the baseline on a new run of the same experiment: the gain
+    # a user would see on fresh data, free of the selection's optimism
+    fresh = make_case(kind, case_seed, replicate=1).table
+    diff = d.selected.log_predictive_density(fresh) - d.baseline.log_predictive_density(fresh)
     return [
         {
             **truth,
             "verdict": rec["verdict"],
             "added": "+".join(sel["added"]),
+            "indistinguishable": "+".join(
+                sorted({t["term"] for t in sel.get("indistinguishable", [])})
+            ),
             "elpd_gain": sel["elpd_gain"],
             "elpd_gain_se": sel["elpd_gain_se"],
             "elpd_gain_cells": sel["elpd_gain_cells"],
             "elpd_gain_cells_se": sel["elpd_gain_cells_se"],
+            "gain_fresh": float(np.sum(diff)),
+            "gain_fresh_se": float(np.sqrt(len(diff)) * np.std(diff, ddof=1)),
             "n_cells": len(misfit),
             "dof_min": float(misfit["dof"].min()) if "dof" in misfit else np.nan,
             "baseline_max_abs_z": float(misfit["z"].abs().max()),
@@ -398,6 +414,11 @@ def diagnose_folder(
             "seed": int(seed),
             "verdict": rec["verdict"],
             "added": "+".join(rec["selected"]["added"]),
+            "indistinguishable": "; ".join(
+                f"{t['selected']}~{t['term']} ({t['elpd_diff']:+.1f} ± {t['elpd_diff_se']:.1f})"
+                for t in rec["selected"]["indistinguishable"]
+            ),
+            "claim": _claim(rec),
             "elpd_gain": rec["selected"]["elpd_gain"],
             "elpd_gain_se": rec["selected"]["elpd_gain_se"],
             "all_converged": rec["all_converged"],
@@ -421,6 +442,21 @@ def diagnose_folder(
             "wall_time_s": time.perf_counter() - t0,
         }
     ]
+
+
+def _claim(rec: Mapping) -> str:
+    """What a diagnosis claims, independent of which of two tied terms scored higher.
+
+    Per round, the added term together with the terms it is not distinguished from, as a
+    sorted set: ``"{compaction} + {drag|viscous}"``.
+    """
+    ties: dict[int, set[str]] = {}
+    for t in rec["selected"].get("indistinguishable", []):
+        ties.setdefault(t["round"], set()).add(t["term"])
+    return " + ".join(
+        "{" + "|".join(sorted({term} | ties.get(r, set()))) + "}"
+        for r, term in enumerate(rec["selected"]["added"], start=1)
+    )
 
 
 def _round1_json(candidates: Sequence[Mapping]) -> str:
@@ -543,8 +579,12 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
     the fraction of each verdict; ``wrong_term`` (a library term named as
     the cause that is not the truth: for ``null`` any named term, for an out-of-library
     effect ``extended`` although misfit was left, which cannot happen by construction and
-    is a check); ``over_budget`` (stopped at :data:`STEP_BUDGET`, counted as not right);
-    ``all_converged``; the median sampler steps and wall time per case.
+    is a check); ``false_claim`` (a wrong term named *and* the truth not reported as
+    indistinguishable from it: the claim a user would be misled by); ``right_alone``
+    (right, with no other term reported as indistinguishable); ``ambiguous`` (any term
+    reported as indistinguishable from an added one); ``over_budget`` (stopped at
+    :data:`STEP_BUDGET`, counted as not right); ``all_converged``; the median sampler
+    steps and wall time per case.
 
     Parameters
     ----------
@@ -557,19 +597,28 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
         One row per case kind.
     """
     rows = []
+    results = results.copy()
+    results["added"] = results["added"].fillna("")
+    ties = results.get("indistinguishable", pd.Series("", index=results.index))
+    results["indistinguishable"] = ties.fillna("")
     for kind, g in results.groupby("kind", sort=False):
         n = len(g)
+        tied = g["indistinguishable"] != ""
         if kind == "null":
             right = g["verdict"] == "baseline_adequate"
             wrong_term = g["added"] != ""
+            false_claim = wrong_term
         elif kind in LIBRARY_EFFECTS:
             right = (g["verdict"] == "extended") & (g["added"] == kind)
             wrong_term = (g["added"] != "") & (g["added"] != kind)
+            flagged = g["indistinguishable"].map(lambda t, k=kind: k in t.split("+"))
+            false_claim = wrong_term & ~flagged
         else:
             right = (g["verdict"] == "misfit_remains") | (
                 (g["verdict"] == "extended") & (g["n_residual_misfit"] == 0)
             )
             wrong_term = (g["verdict"] == "extended") & (g["n_residual_misfit"] > 0)
+            false_claim = wrong_term
         p = float(right.mean())
         lo, hi = clopper_pearson(int(right.sum()), n)
         rows.append(
@@ -584,7 +633,10 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
                     f"verdict_{v}": float((g["verdict"] == v).mean())
                     for v in ("baseline_adequate", "extended", "misfit_remains")
                 },
+                "right_alone": float((right & ~tied).mean()),
+                "ambiguous": float(tied.mean()),
                 "wrong_term": float(wrong_term.mean()),
+                "false_claim": float(false_claim.mean()),
                 "over_budget": float((g["verdict"] == "over_budget").mean()),
                 "all_converged": float(g["all_converged"].mean()),
                 "median_steps": float(g["sampler_steps"].median())
@@ -593,4 +645,6 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
                 "median_time_s": float(g["wall_time_s"].median()),
             }
         )
-    return pd.DataFrame(rows)
+    order = {k: i for i, k in enumerate(CASE_KINDS)}
+    out = pd.DataFrame(rows)
+    return out.sort_values("kind", key=lambda k: k.map(order), kind="stable").reset_index(drop=True)

@@ -32,6 +32,13 @@ best converged candidate of a round is added when its ELPD gain over the current
 exceeds both ``min_gain`` nats and ``se_factor`` standard errors of the difference, **and**
 the current law shows misfit or the gain exceeds ``strong_gain`` nats.
 
+Naming a term is a claim about the physics, so the chosen term must also beat every other
+fitted candidate of its round by the same standard (:func:`distinguished`: more than
+``min_gain`` nats and ``se_factor`` SE of the paired difference). Those it does not beat
+are reported with it as *indistinguishable* on these data (:func:`rivals`;
+``selected.indistinguishable`` in ``diagnosis.json``): drag and viscous damping, for one,
+are often told apart only by a wide spread of actuation frequencies.
+
 The gain is also reported as a leave-one-*cell*-out estimate (PSIS over the summed
 log-likelihood of each cell): how much better the selected law predicts a setting it has
 not seen. It is computed on the data used for selection, so it is still optimistic about
@@ -60,7 +67,6 @@ from ._provenance import environment
 from .experiment import Experiment
 from .fitting import FitResult, FitSettings, fit, screen
 from .forces import TERMS, terms_of
-from .likelihood import Observations
 from .priors import Prior
 from .sampler import ProgressInfo, SamplerSettings
 from .saved import SavedFit
@@ -73,11 +79,13 @@ __all__ = [
     "FitBank",
     "IDENTIFIABILITY_LEVELS",
     "decide",
+    "distinguished",
     "describe_cell",
     "diagnose",
     "identifiability_table",
     "misfit_threshold",
     "residual_table",
+    "rivals",
     "rmse_mm",
     "verdict",
 ]
@@ -128,7 +136,8 @@ class DiagnoseSettings:
         Screen the candidates before fitting them (:func:`granbayes.fitting.screen`): in
         order of their largest log-likelihood gain, a candidate gets a full posterior
         only if that gain reaches ``min_gain`` and the best ELPD gain of the converged
-        candidates fitted before it less ``screen_margin``; the others cannot win and are
+        candidates fitted before it less ``min_gain + screen_margin``; the others can
+        neither win nor be indistinguishable from the winner (:func:`rivals`) and are
         listed as screened out.
     screen_margin : float
         Allowance [nats] for an ELPD gain above the screened log-likelihood gain (a badly
@@ -671,7 +680,7 @@ class FitBank:
             phi = t.loc[j, "phi"]
             train = t[(t["phi"] == phi) & (t.index != j)]
             res = self._heldout(key, train, self.seed + 7919 * (j + 1))
-            out[j] = float(_log_predictive(res.parts[0], t.loc[[j]])[0])
+            out[j] = float(res.log_predictive_density(t.loc[[j]])[0])
         return out
 
     def kfold_elpd_i(self, key: tuple[str, ...]) -> np.ndarray:
@@ -695,17 +704,8 @@ class FitBank:
         elpd_i = np.empty(len(t))
         for f in range(k):
             res = self._heldout(key, t[folds != f], self.seed + 101 * (f + 1))
-            for part in res.parts:
-                sel = (folds == f) & (t["phi"] == float(part.model.phis[0])).to_numpy()
-                if np.any(sel):
-                    elpd_i[sel] = _log_predictive(part, t[sel])
+            elpd_i[folds == f] = res.log_predictive_density(t[folds == f])
         return elpd_i
-
-
-def _log_predictive(part, rows: pd.DataFrame) -> np.ndarray:
-    """Log p(y_i | data of the fit) for held-out jumps ``rows`` under a fitted run."""
-    flat = part.run.samples.reshape(-1, part.run.samples.shape[-1])
-    return part.model.log_predictive_density(flat, Observations.from_table(rows))
 
 
 class _Pointwise:
@@ -788,6 +788,10 @@ class Candidate:
     screen_gain : float
         Largest log-likelihood gain over the current law found by the screening search
         [nats] (NaN when screening is off).
+    vs_selected, vs_selected_se : float
+        ELPD difference (the candidate chosen this round - this one) and its SE [nats],
+        paired over the same jumps (NaN for the chosen one, a screened-out candidate, or a
+        round where nothing was chosen). :func:`rivals` reads it.
     """
 
     term: str
@@ -803,6 +807,8 @@ class Candidate:
     method: str
     converged: bool
     screen_gain: float = float("nan")
+    vs_selected: float = float("nan")
+    vs_selected_se: float = float("nan")
 
     @property
     def screened_out(self) -> bool:
@@ -820,6 +826,8 @@ class Candidate:
         d["elpd_diff_se"] = d.pop("gain_vs_baseline_se")
         d["elpd_diff_vs_current"] = d.pop("gain")
         d["elpd_diff_vs_current_se"] = d.pop("gain_se")
+        d["elpd_diff_vs_selected"] = d.pop("vs_selected")
+        d["elpd_diff_vs_selected_se"] = d.pop("vs_selected_se")
         return d
 
 
@@ -851,6 +859,60 @@ def decide(
     best = max(eligible, key=lambda c: c.gain)
     clear = best.gain > config.min_gain and best.gain > config.se_factor * best.gain_se
     return best if clear and (n_misfit > 0 or best.gain > config.strong_gain) else None
+
+
+def distinguished(diff: float, se: float, config: DiagnoseSettings) -> bool:
+    """Whether an ELPD difference [nats] is clear by the rule's own standard.
+
+    The same standard a term must meet to be added over the current law: more than
+    ``min_gain`` nats *and* more than ``se_factor`` standard errors of the paired
+    difference. Below 4 nats the normal approximation of the difference's uncertainty is
+    unreliable and the two laws predict alike (Sivula, Magnusson & Vehtari 2020,
+    "Uncertainty in Bayesian leave-one-out cross-validation based model comparison").
+
+    Parameters
+    ----------
+    diff, se : float
+        The ELPD difference and its standard error [nats].
+    config : DiagnoseSettings
+        The thresholds.
+
+    Returns
+    -------
+    bool
+    """
+    return bool(diff > config.min_gain and diff > config.se_factor * se)
+
+
+def rivals(candidates: Sequence[Candidate], config: DiagnoseSettings) -> list[Candidate]:
+    """Candidates of a round the chosen one is not :func:`distinguished` from.
+
+    A verdict that names a term is a claim about the physics; where the data predict as
+    well with another term, naming one alone would overstate it. A rival is a fitted
+    candidate whose paired ELPD difference to the chosen one (``vs_selected``) is not
+    clear. Unconverged candidates count too: they could not be chosen, nor ruled out.
+    Screened-out candidates are not rivals: their largest log-likelihood gain lies more
+    than ``min_gain + screen_margin`` below the chosen one's ELPD gain.
+
+    Parameters
+    ----------
+    candidates : sequence of Candidate
+        A round's candidates, compared with its chosen one (``vs_selected`` set).
+    config : DiagnoseSettings
+        The thresholds.
+
+    Returns
+    -------
+    list of Candidate
+        Closest first.
+    """
+    out = [
+        c
+        for c in candidates
+        if math.isfinite(c.vs_selected)
+        and not distinguished(c.vs_selected, c.vs_selected_se, config)
+    ]
+    return sorted(out, key=lambda c: c.vs_selected)
 
 
 def verdict(added: Sequence[str], baseline_misfit: int, residual_misfit: int) -> str:
@@ -945,7 +1007,8 @@ def _score_round(
     best_gain = -np.inf
     for term in terms:
         key = terms_of((*current, term))
-        bar = max(cfg.min_gain, best_gain - cfg.screen_margin)
+        # below this bar a candidate can neither win nor be a rival of the winner
+        bar = max(cfg.min_gain, best_gain - cfg.min_gain - cfg.screen_margin)
         if cfg.screen and screen_gain[term] < bar:
             nan = float("nan")
             screened.append(
@@ -1016,6 +1079,34 @@ def _score_round(
     return out + screened
 
 
+def _versus_chosen(
+    pointwise: _Pointwise,
+    current: tuple[str, ...],
+    chosen: Candidate,
+    scored: Sequence[Candidate],
+) -> list[Candidate]:
+    """Every fitted candidate of a round with its paired ELPD difference to the chosen one.
+
+    Where PSIS-LOO does not already separate the two by twice the rule's margin, jumps with
+    bad Pareto k in either law are recomputed (``_Pointwise``), as for the decision itself.
+    """
+    loos, cfg = pointwise.bank.loos, pointwise.bank.config
+    key = terms_of((*current, chosen.term))
+    out = []
+    for c in scored:
+        if c.screened_out or c.term == chosen.term or not math.isfinite(c.gain):
+            out.append(c)
+            continue
+        other = terms_of((*current, c.term))
+        diff, se = gdt.elpd_difference(loos[key]["elpd_i"], loos[other]["elpd_i"])
+        far = diff > 2.0 * cfg.min_gain and diff > 2.0 * cfg.se_factor * se
+        if not far:
+            (e_chosen, e_other), _ = pointwise((key, other))
+            diff, se = gdt.elpd_difference(e_chosen, e_other)
+        out.append(replace(c, vs_selected=diff, vs_selected_se=se))
+    return out
+
+
 def diagnose(
     experiment: Experiment,
     table: pd.DataFrame,
@@ -1078,11 +1169,21 @@ def diagnose(
                 f"    + {c.term:<11} elpd gain {c.gain:+7.1f} ± {c.gain_se:4.1f}   "
                 f"rmse {c.rmse_mm:.2f} mm ({c.method}{'' if c.converged else ', NOT converged'})"
             )
-        candidates.extend(scored)
         chosen = decide(scored, n_misfit, cfg)
+        if chosen is not None:
+            scored = _versus_chosen(pointwise, current, chosen, scored)
+        candidates.extend(scored)
         if chosen is None:
             log("  no clear gain")
             break
+        close = rivals(scored, cfg)
+        if close:
+            log(
+                f"  {chosen.term} is not distinguished from "
+                + ", ".join(
+                    f"{c.term} ({c.vs_selected:+.1f} ± {c.vs_selected_se:.1f})" for c in close
+                )
+            )
         added.append(chosen.term)
         current = terms_of((*current, chosen.term))
         misfit = residual_table(bank.fits[current])
@@ -1162,6 +1263,18 @@ def _record(
     n_before = int((before["z"].abs() > z_thr).sum())
     residual = _cells_json(after, z_thr, only_misfit=True)
     fits = [bank.records[k].to_json() for k in bank.records]
+    indistinguishable = [
+        {
+            "round": r,
+            "selected": term,
+            "term": c.term,
+            "elpd_diff": c.vs_selected,
+            "elpd_diff_se": c.vs_selected_se,
+            "converged": c.converged,
+        }
+        for r, term in enumerate(added, start=1)
+        for c in rivals([x for x in candidates if x.round == r], cfg)
+    ]
     return {
         "baseline": {
             "terms": list(base),
@@ -1183,6 +1296,7 @@ def _record(
             "elpd_gain_cells_se": cell_gain_se,
             "rmse_before_mm": rmse_mm(baseline),
             "rmse_after_mm": rmse_mm(selected),
+            "indistinguishable": indistinguishable,
             "parameters": new_params,
             "interval": f"{gdt.CI_PROB:.0%} equal-tailed (5%, 50%, 95% quantiles)",
             "per_cell": per_cell,
@@ -1204,11 +1318,13 @@ def _record(
                 f"(|z| > {z_thr:.2f}: family-wise false-alarm rate {cfg.family_alpha:g} "
                 f"over {len(before)} cells) or the gain exceeds {cfg.strong_gain:g} nats; "
                 f"at most {cfg.max_added} terms; misfit the selected law leaves gives "
-                "'misfit_remains'"
+                "'misfit_remains'; a fitted candidate the chosen one does not beat by the "
+                f"same margin (> {cfg.min_gain:g} nats and > {cfg.se_factor:g} SE of the "
+                "paired difference) is reported as indistinguishable from it"
                 + (
                     "; a candidate is fitted only if its screened log-likelihood gain reaches "
                     f"{cfg.min_gain:g} nats and the best ELPD gain fitted before it less "
-                    f"{cfg.screen_margin:g}"
+                    f"{cfg.min_gain + cfg.screen_margin:g}"
                     if cfg.screen
                     else ""
                 )

@@ -195,6 +195,34 @@ class FitResult:
         """Per run: autocorrelation times, R-hat, ESS, chain length, convergence."""
         return gdt.run_diagnostics(self.datatree)
 
+    def log_predictive_density(self, table: pd.DataFrame) -> np.ndarray:
+        """Log predictive density of jumps the fit has not seen [nats], one per row.
+
+        ``log mean_s p(y_i | theta_s)`` over every posterior draw of the run that fitted
+        the row's volume fraction (the observation model of
+        :meth:`granbayes.likelihood.JumpModel.log_predictive_density`): held-out jumps of
+        a cross-validation, or a new experiment at the fitted volume fractions.
+
+        Parameters
+        ----------
+        table : pandas.DataFrame
+            Jumps (``load_jumps`` columns).
+
+        Returns
+        -------
+        ndarray, shape (len(table),)
+            NaN for a row at a volume fraction no run of the fit covers.
+        """
+        out = np.full(len(table), np.nan)
+        phi = table["phi"].to_numpy(dtype=float)
+        for part in self.parts:
+            rows = np.isin(phi, np.asarray(part.model.phis, dtype=float))
+            if np.any(rows):
+                flat = part.run.samples.reshape(-1, part.run.samples.shape[-1])
+                obs = Observations.from_table(table[rows])
+                out[rows] = part.model.log_predictive_density(flat, obs)
+        return out
+
     def save(self, path: str | Path) -> Path:
         """Write the DataTree as netCDF (``posterior.nc``; read back with ``load_fit``).
 

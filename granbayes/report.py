@@ -699,6 +699,9 @@ def _candidate_row(c: Mapping, base_terms: str) -> dict[str, str]:
         if screened
         else f"{c['elpd_diff']:+.1f} ± {c['elpd_diff_se']:.1f}",
         "rmse [mm]": _fmt(c["rmse_mm"], ".2f"),
+        "elpd behind the chosen": "-"
+        if c.get("elpd_diff_vs_selected") is None
+        else f"{c['elpd_diff_vs_selected']:+.1f} ± {c['elpd_diff_vs_selected_se']:.1f}",
         "max Pareto k": _fmt(c["max_pareto_k"], ".2f"),
         "method": c["method"],
         "converged": "-" if screened else ("yes" if c["converged"] else "NO"),
@@ -714,10 +717,12 @@ def _verdict_lines(rec: Mapping, base_terms: str) -> list[str]:
         f"unseen settings, leave-one-cell-out)"
     )
     rmse = f"RMSE {sel['rmse_before_mm']:.2f} mm -> {sel['rmse_after_mm']:.2f} mm"
+    ties = _tie_lines(sel)
     if rec["verdict"] == "extended":
         return [
             f"**Verdict: extended.** The baseline law ({base_terms}) misses physics; adding "
-            f"**{', '.join(sel['added'])}** gains {gain}, {rmse}, and leaves no misfit cell."
+            f"**{', '.join(sel['added'])}** gains {gain}, {rmse}, and leaves no misfit cell.",
+            *ties,
         ]
     if rec["verdict"] == "baseline_adequate":
         return [
@@ -747,6 +752,36 @@ def _verdict_lines(rec: Mapping, base_terms: str) -> list[str]:
         + "No term is named as the cause. Where the law still fails:",
         "",
         *where,
+        *ties,
+    ]
+
+
+def _tie_lines(sel: Mapping) -> list[str]:
+    """The added terms the data do not tell from another candidate, in words."""
+    ties = sel.get("indistinguishable", [])
+    if not ties:
+        return []
+    by_term: dict[str, list[str]] = {}
+    for t in ties:
+        by_term.setdefault(t["selected"], []).append(
+            f"{t['term']} ({t['elpd_diff']:+.1f} ± {t['elpd_diff_se']:.1f} nats behind"
+            + ("" if t["converged"] else ", not converged")
+            + ")"
+        )
+    said = "; ".join(f"**{k}** from {', '.join(v)}" for k, v in by_term.items())
+    rate_pair = any({t["selected"], t["term"]} == {"drag", "viscous"} for t in ties)
+    return [
+        "",
+        f"**Not distinguished on these data:** {said}. The data predict about as well with "
+        "either term (a difference below the rule's margin), so the named term is the "
+        "better-scoring of equals, not an established cause; an experiment designed to "
+        "separate them would decide"
+        + (
+            " (drag grows with the square of the intrusion speed, viscous damping linearly: "
+            "a wider spread of actuation frequencies separates them)."
+            if rate_pair
+            else "."
+        ),
     ]
 
 

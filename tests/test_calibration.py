@@ -175,3 +175,69 @@ def test_a_case_over_its_step_budget_is_recorded_without_a_verdict() -> None:
     assert s.loc["null", "wrong_term"] == 0.0
     out = rederive_verdicts(rows, min_gain=4.0, se_factor=2.0, strong_gain=10.0, family_alpha=0.05)
     assert out.tolist() == ["", ""]
+
+
+def test_a_replicate_repeats_the_experiment_with_new_noise() -> None:
+    """Same robot, design and truth; only the noise differs, with the case's scatter.
+
+    The height differences of two replicates are the difference of two independent
+    N(0, sigma^2) draws: their standard deviation is sqrt(2) sigma, checked within 5 SE of
+    a sample SD (SE ~ sd / sqrt(2 (n - 1)), n = 160 jumps).
+    """
+    case, again, rep = make_case("drag", 3), make_case("drag", 3, replicate=0), None
+    rep = make_case("drag", 3, replicate=1)
+    pd.testing.assert_frame_equal(case.table, again.table)
+    assert rep.truth == case.truth
+    same = [c for c in case.table.columns if c not in ("height_mm", "source")]
+    pd.testing.assert_frame_equal(case.table[same], rep.table[same])
+    assert rep.table["source"].str.contains("replicate=1").all()
+    diff = (rep.table["height_mm"] - case.table["height_mm"]).to_numpy()
+    n = len(diff)
+    expected = np.sqrt(2.0) * case.truth["sigma_mm"]
+    assert abs(np.std(diff, ddof=1) - expected) < 5 * expected / np.sqrt(2 * (n - 1))
+    assert not np.allclose(diff, 0.0)
+
+
+def test_summarize_separates_ties_from_false_claims() -> None:
+    """A wrong term named with the truth reported as indistinguishable is not a false claim;
+    a right term with a tie is right but not right_alone."""
+    rows = [
+        {**_row("drag", [], added="viscous"), "indistinguishable": "drag"},
+        {**_row("drag", [], added="viscous"), "indistinguishable": ""},
+        {**_row("drag", [], added="drag"), "indistinguishable": "viscous"},
+        {**_row("drag", [], added="drag"), "indistinguishable": ""},
+    ]
+    s = summarize(pd.DataFrame(rows)).set_index("kind")
+    assert s.loc["drag", "right"] == 0.5 and s.loc["drag", "right_alone"] == 0.25
+    assert s.loc["drag", "wrong_term"] == 0.5 and s.loc["drag", "false_claim"] == 0.25
+    assert s.loc["drag", "ambiguous"] == 0.5
+    # rows recorded before ties were reported count as untied
+    old = summarize(pd.DataFrame([_row("drag", [], added="viscous")])).set_index("kind")
+    assert old.loc["drag", "false_claim"] == 1.0 and old.loc["drag", "ambiguous"] == 0.0
+
+
+def test_a_case_row_scores_the_selected_law_on_fresh_data() -> None:
+    """``gain_fresh``: the selected law against the baseline on a new run of the experiment.
+
+    A strong hidden drag with short sampler settings: drag is added, and the two fitted
+    laws' log predictive density gain on the replicate data is positive (the truth
+    predicts new jumps better), as is the in-sample estimate.
+    """
+    from granbayes.criticism import DiagnoseSettings
+    from granbayes.sampler import SamplerSettings
+
+    fast = SamplerSettings(
+        n_walkers=8,
+        n_ensembles=2,
+        check_every=50,
+        max_steps=600,
+        n_draws=60,
+        min_ess=50,
+        max_rhat=1.05,
+    )
+    config = DiagnoseSettings(candidates=("drag",), sampler=fast, n_threads=1)
+    (row,) = diagnose_case("drag", 0, config, seed=11, step_budget=None)
+    assert row["added"] == "drag", row
+    assert row["gain_fresh"] > 0 and row["elpd_gain"] > 0
+    assert row["gain_fresh_se"] > 0 and row["indistinguishable"] == ""
+    print({k: row[k] for k in ("elpd_gain", "elpd_gain_se", "gain_fresh", "gain_fresh_se")})

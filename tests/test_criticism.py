@@ -27,8 +27,10 @@ from granbayes.criticism import (
     decide,
     describe_cell,
     diagnose,
+    distinguished,
     misfit_threshold,
     residual_table,
+    rivals,
     verdict,
 )
 from granbayes.report import write_diagnosis_report
@@ -397,6 +399,55 @@ def test_decide_uses_the_configured_thresholds() -> None:
     assert decide(cand, 0, DiagnoseSettings(strong_gain=5.0)) is not None
 
 
+# DiagnoseSettings(): a difference is clear above 4 nats and 2 SE
+DISTINGUISHED_CASES = [
+    (0.3, 1.1, False),  # a coin toss (drag against viscous in the calibration study)
+    (4.0, 0.5, False),  # at min_gain: not above it
+    (4.01, 0.5, True),
+    (6.0, 3.0, False),  # at 2 SE
+    (6.0, 2.99, True),
+    (-5.0, 1.0, False),  # the other one is better
+]
+
+
+@pytest.mark.parametrize(("diff", "se", "expected"), DISTINGUISHED_CASES)
+def test_distinguished_uses_the_rules_own_margin(diff: float, se: float, expected: bool) -> None:
+    """Told apart only by more than min_gain nats and more than se_factor SE."""
+    assert distinguished(diff, se, DiagnoseSettings()) is expected
+    assert distinguished(diff, se, DiagnoseSettings(min_gain=100.0)) is False
+
+
+def test_rivals_are_the_fitted_candidates_not_told_from_the_chosen_one() -> None:
+    """Rivals: finite paired difference to the chosen one, not clear; closest first.
+
+    An unconverged candidate counts (it could not be chosen, nor ruled out); a screened-out
+    one and the chosen one itself (no paired difference) do not.
+    """
+    from dataclasses import replace
+
+    chosen = _candidate("viscous", 20.0)
+    close = replace(_candidate("drag", 19.7), vs_selected=0.3, vs_selected_se=1.1)
+    closer = replace(_candidate("stiffening", 19.9), vs_selected=0.1, vs_selected_se=2.0)
+    far = replace(_candidate("unloading", 5.0), vs_selected=15.0, vs_selected_se=3.0)
+    unconverged = replace(
+        _candidate("added_mass", 18.0, converged=False), vs_selected=2.0, vs_selected_se=1.0
+    )
+    screened = replace(_candidate("compaction", float("nan")), method="screened out (...)")
+    found = rivals([chosen, close, closer, far, unconverged, screened], DiagnoseSettings())
+    assert [c.term for c in found] == ["stiffening", "drag", "added_mass"]
+    assert rivals([chosen, far], DiagnoseSettings()) == []
+
+
+def test_candidate_json_carries_the_comparison_with_the_chosen_one() -> None:
+    """``elpd_diff_vs_selected`` (and its SE) in diagnosis.json; null where not compared."""
+    from dataclasses import replace
+
+    plain = _candidate("drag", 6.0).to_json()
+    assert plain["elpd_diff_vs_selected"] is None and plain["elpd_diff_vs_selected_se"] is None
+    compared = replace(_candidate("drag", 6.0), vs_selected=0.5, vs_selected_se=1.5).to_json()
+    assert (compared["elpd_diff_vs_selected"], compared["elpd_diff_vs_selected_se"]) == (0.5, 1.5)
+
+
 @pytest.mark.parametrize(
     ("added", "baseline_misfit", "residual_misfit", "expected"),
     [
@@ -468,6 +519,8 @@ def test_diagnosis_json_contract(drag_case, drag_report: Path) -> None:
             "max_pareto_k",
             "method",
             "converged",
+            "elpd_diff_vs_selected",
+            "elpd_diff_vs_selected_se",
         } <= set(cand)
     assert [c["term"] for c in rec["candidates"]] == ["drag"]
     # the verdict and what it rests on
@@ -490,7 +543,9 @@ def test_diagnosis_json_contract(drag_case, drag_report: Path) -> None:
         "parameters",
         "interval",
         "per_cell",
+        "indistinguishable",
     } <= set(sel)
+    assert sel["indistinguishable"] == []  # one candidate: nothing to confuse it with
     assert sel["added"] == ["drag"] and sel["terms"] == ["depth", "drag"]
     assert sel["elpd_gain"] > config.min_gain and sel["elpd_gain"] > 2 * sel["elpd_gain_se"]
     assert sel["rmse_after_mm"] < sel["rmse_before_mm"]
@@ -685,3 +740,81 @@ def test_a_screened_out_candidate_is_listed_not_fitted(tmp_path: Path) -> None:
     assert d.added == ["drag"]
     write_diagnosis_report(d.to_json(), d.selected.datatree, tmp_path)
     assert "screened out" in (tmp_path / "report.md").read_text()
+
+
+def test_drag_and_viscous_compared_paired_and_ties_reported(tmp_path: Path) -> None:
+    """Two rate laws fitted in full: every fitted one carries its paired ELPD difference to
+    the chosen one, and ``selected.indistinguishable`` lists exactly :func:`rivals`.
+
+    The design has one frequency (10 Hz) and a strong hidden drag. Whether drag and
+    viscous are told apart on it is the data's business; what is checked is that the
+    comparison is computed from the two laws' pointwise ELPDs, reported whichever way it
+    falls, and said in words in the report.
+    """
+    table = _table({"c_d": 150.0})
+    cfg = DiagnoseSettings(candidates=("drag", "viscous"), sampler=FAST, n_threads=1, screen=False)
+    d = diagnose(Experiment(), table, cfg, seed=2, log=_quiet)
+    rec = _strict_json(json.dumps(d.to_json()))
+    assert d.added, rec["candidates"]
+    chosen = d.added[0]
+    round1 = [c for c in d.candidates if c.round == 1]
+    (other,) = [c for c in round1 if c.term != chosen]
+    loo = {t: gdt.loo(d.fits[("depth", t)].datatree)["elpd_i"] for t in ("drag", "viscous")}
+    if "psis-loo" == other.method:
+        diff, se = gdt.elpd_difference(loo[chosen], loo[other.term])
+        assert (other.vs_selected, other.vs_selected_se) == pytest.approx((diff, se))
+    assert other.vs_selected >= 0.0 or not other.converged  # the chosen one scores best
+    expected = [
+        {
+            "round": 1,
+            "selected": chosen,
+            "term": c.term,
+            "elpd_diff": c.vs_selected,
+            "elpd_diff_se": c.vs_selected_se,
+            "converged": c.converged,
+        }
+        for c in rivals(round1, cfg)
+    ]
+    assert rec["selected"]["indistinguishable"] == json.loads(json.dumps(expected))
+    write_diagnosis_report(d.to_json(), d.selected.datatree, tmp_path)
+    report = (tmp_path / "report.md").read_text()
+    assert ("Not distinguished on these data" in report) == bool(expected)
+    print(f"{chosen} vs {other.term}: {other.vs_selected:+.2f} ± {other.vs_selected_se:.2f}")
+
+
+def test_report_says_which_terms_the_data_cannot_tell_apart(drag_case, tmp_path: Path) -> None:
+    """A tie in diagnosis.json is said in words: the named term is not an established cause."""
+    _, _, d, _ = drag_case
+    rec = json.loads(json.dumps(d.to_json(), default=float))
+    rec["selected"]["indistinguishable"] = [
+        {
+            "round": 1,
+            "selected": "drag",
+            "term": "viscous",
+            "elpd_diff": 0.3,
+            "elpd_diff_se": 1.1,
+            "converged": True,
+        }
+    ]
+    write_diagnosis_report(rec, d.selected.datatree, tmp_path)
+    report = (tmp_path / "report.md").read_text()
+    assert "**Not distinguished on these data:** **drag** from viscous (+0.3 ± 1.1" in report
+    assert "not an established cause" in report
+    assert "wider spread of actuation frequencies" in report
+
+
+def test_log_predictive_density_of_fitted_jumps_is_the_mean_likelihood(drag_case) -> None:
+    """On the fit's own jumps, ``log mean_s p(y_i | theta_s)`` from the log_likelihood group.
+
+    The same observation model scores held-out jumps (exact refits, K-fold) and fresh data;
+    at a volume fraction no run covers it is NaN.
+    """
+    from scipy.special import logsumexp
+
+    table, _, d, _ = drag_case
+    ll = d.selected.datatree["log_likelihood"]["height_mm"].values
+    flat = ll.reshape(-1, ll.shape[-1])
+    expected = logsumexp(flat, axis=0) - np.log(flat.shape[0])
+    np.testing.assert_allclose(d.selected.log_predictive_density(table), expected, atol=1e-10)
+    elsewhere = table.assign(phi=0.5)
+    assert np.isnan(d.selected.log_predictive_density(elsewhere)).all()
