@@ -178,6 +178,8 @@ print(f"truth (noiseless): {true_height.height_mm[0]:.1f} mm")
 # it. The data were made with compaction, so compaction should be found, and drag not.
 # `granbayes diagnose my-lab --out diag` does the same and writes `diagnosis.json` and a
 # report; there every other term of the library is a candidate (here two, to be quick).
+# A term that the named one does not beat by the rule's margin is listed as
+# indistinguishable from it: the data then do not say which of the two is the cause.
 
 # %%
 diag_config = DiagnoseSettings(baseline=("depth",), candidates=("drag", "compaction"), sampler=FAST)
@@ -185,6 +187,8 @@ diagnosis = diagnose(experiment, table, diag_config, seed=SEED, data_source="my-
 record = diagnosis.to_json()
 print("verdict:", record["verdict"])
 print("added:", record["selected"]["added"])
+# terms the data predict about as well with (a name among equals is not a cause)
+print("not told apart from:", [t["term"] for t in record["selected"]["indistinguishable"]])
 gain, se = record["selected"]["elpd_gain"], record["selected"]["elpd_gain_se"]
 print(f"ELPD gain: {gain:.1f} +- {se:.1f} nats")
 rmse_before, rmse_after = record["selected"]["rmse_before_mm"], record["selected"]["rmse_after_mm"]
