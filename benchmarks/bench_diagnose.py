@@ -6,11 +6,14 @@ same verdict, and <= 2x that on data holding an effect outside the library
 ``data/generate_outside_library.py``). Runs the loop as the CLI does (baseline,
 screening, candidates, forward selection, report) and records the wall time, the fits it
 needed, the candidates screened out and the verdict against the documented truth.
-``--no-screen`` fits every candidate in full (the lever's baseline). Writes
-``benchmarks/results/diagnose[_<data>][_noscreen].json`` and ``.md``.
+``--no-screen`` fits every candidate in full (the lever's baseline). ``--without TERMS``
+takes terms out of the candidates: with the true term of the data taken out, the library
+no longer holds the physics, and the right verdict is ``misfit_remains`` (or a law that
+truly leaves no misfit), never a nearby term named as the cause. Writes
+``benchmarks/results/diagnose[_<data>][_without_<terms>][_noscreen].json`` and ``.md``.
 
 Usage: ``python benchmarks/bench_diagnose.py [--seed N] [--data reference|outside_library]
-[--no-screen]``
+[--without TERM[,TERM]] [--no-screen]``
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from pathlib import Path
 
 from granbayes import load_experiment, load_jumps, simulate
 from granbayes.criticism import DiagnoseSettings, diagnose
+from granbayes.forces import TERMS
 from granbayes.report import write_diagnosis_report
 from granbayes.synthetic import REFERENCE_DATA
 
@@ -47,12 +51,21 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--data", choices=sorted(DATA), default="reference")
     parser.add_argument("--no-screen", action="store_true", help="fit every candidate")
+    parser.add_argument("--without", default="", help="terms taken out of the candidates")
     args = parser.parse_args()
     folder, truth = DATA[args.data]
+    without = tuple(t.strip() for t in args.without.split(",") if t.strip())
     simulate("single", 0.612, {"k": 3000.0})  # compile / load the cache outside the timing
     experiment = load_experiment(folder)
     table = load_jumps(folder, experiment)
     config = dataclasses.replace(DiagnoseSettings(), screen=not args.no_screen)
+    if without:
+        unknown = sorted(set(without) - set(TERMS))
+        if unknown:
+            parser.error(f"--without: unknown terms {unknown}")
+        keep = tuple(t for t in TERMS if t not in without)
+        config = dataclasses.replace(config, candidates=keep)
+        truth += f"; the candidates lack {', '.join(without)}"
     t0 = time.perf_counter()
     d = diagnose(experiment, table, config, seed=args.seed, data_source=str(folder))
     t_loop = time.perf_counter() - t0
@@ -75,6 +88,9 @@ def main() -> None:
         "timing_s": {k: round(v, 1) for k, v in d.timing_s.items()},
         "verdict": rec["verdict"],
         "added": rec["selected"]["added"],
+        "indistinguishable": rec["selected"]["indistinguishable"],
+        "n_residual_misfit": len(rec["residual_misfit"]),
+        "candidates_withheld": list(without),
         "all_converged": rec["all_converged"],
         "elpd_gain": rec["selected"]["elpd_gain"],
         "elpd_gain_se": rec["selected"]["elpd_gain_se"],
@@ -88,6 +104,7 @@ def main() -> None:
         ),
     }
     stem = "diagnose" + ("" if args.data == "reference" else f"_{args.data}")
+    stem += f"_without_{'_'.join(without)}" if without else ""
     stem += "" if config.screen else "_noscreen"
     (HERE / "results").mkdir(exist_ok=True)
     (HERE / "results" / f"{stem}.json").write_text(json.dumps(result, indent=2) + "\n")
