@@ -80,6 +80,7 @@ from scipy.optimize import OptimizeResult, brentq
 from .commands import CommandProgram, build_command
 from .experiment import COMMAND_NAMES, Experiment
 from .forces import PARAMETERS, Parameter
+from .sampler import SamplerSettings
 from .simulator import SolverSettings
 from .synthetic import make_jumps
 
@@ -87,6 +88,7 @@ __all__ = [
     "COMPACTION_LENGTH",
     "ENERGY_BOX_WIDENING",
     "PARAMETER_DEFAULTS",
+    "QUICK_SAMPLER",
     "energy_test_box",
     "simulate_height_scipy",
     "synthetic_jumps",
@@ -110,6 +112,19 @@ _IMPLEMENTED = ("c_d", "kappa", "k2", "b", "c_comp", "r_unload")
 PARAMETER_DEFAULTS: dict[str, float] = {
     p.name: p.absent for p in PARAMETERS if p.name in _IMPLEMENTED and p.absent is not None
 }
+
+#: Sampler settings for tests of the inference loop on small data: two ensembles of 8
+#: walkers and a stopping rule such short chains can meet (R-hat across the two ensembles
+#: <= 1.05, ESS >= 50, at most 600 steps). Not for results anyone quotes.
+QUICK_SAMPLER = SamplerSettings(
+    n_walkers=8,
+    n_ensembles=2,
+    check_every=50,
+    max_steps=600,
+    n_draws=60,
+    min_ess=50,
+    max_rhat=1.05,
+)
 
 #: How far the energy-test box reaches beyond the realistic range of a dimensional
 #: coefficient: 5 times its upper end.

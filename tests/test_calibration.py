@@ -26,6 +26,7 @@ from granbayes.calibration import (
     rederive_verdicts,
     summarize,
 )
+from granbayes.testing import QUICK_SAMPLER
 
 
 @pytest.mark.parametrize("kind", ["null", "drag", "pause_stiffening"])
@@ -224,18 +225,8 @@ def test_a_case_row_scores_the_selected_law_on_fresh_data() -> None:
     predicts new jumps better), as is the in-sample estimate.
     """
     from granbayes.criticism import DiagnoseSettings
-    from granbayes.sampler import SamplerSettings
 
-    fast = SamplerSettings(
-        n_walkers=8,
-        n_ensembles=2,
-        check_every=50,
-        max_steps=600,
-        n_draws=60,
-        min_ess=50,
-        max_rhat=1.05,
-    )
-    config = DiagnoseSettings(candidates=("drag",), sampler=fast, n_threads=1)
+    config = DiagnoseSettings(candidates=("drag",), sampler=QUICK_SAMPLER, n_threads=1)
     (row,) = diagnose_case("drag", 0, config, seed=11, step_budget=None)
     assert row["added"] == "drag", row
     assert row["gain_fresh"] > 0 and row["elpd_gain"] > 0

@@ -34,21 +34,12 @@ from granbayes.criticism import (
     verdict,
 )
 from granbayes.report import write_diagnosis_report
-from granbayes.sampler import SamplerSettings
 from granbayes.synthetic import write_experiment
-from granbayes.testing import synthetic_jumps
+from granbayes.testing import QUICK_SAMPLER, synthetic_jumps
 
-#: Short sampler settings for the loop: two ensembles of 8 walkers, a stopping rule that
-#: such short chains can meet (R-hat across the two ensembles <= 1.05, ESS >= 50).
-FAST = SamplerSettings(
-    n_walkers=8,
-    n_ensembles=2,
-    check_every=50,
-    max_steps=600,
-    n_draws=60,
-    min_ess=50,
-    max_rhat=1.05,
-)
+#: Short sampler settings for the loop (the test kit's: R-hat across two ensembles <= 1.05,
+#: ESS >= 50).
+FAST = QUICK_SAMPLER
 VERDICTS = ("baseline_adequate", "extended", "misfit_remains")
 #: Repeated jumps per cell of the synthetic designs.
 TRIALS = 4
