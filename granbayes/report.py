@@ -747,7 +747,7 @@ def _verdict_lines(rec: Mapping, base_terms: str) -> list[str]:
         helped = "No library term removes it. "
     where = [f"- {m['description']}" for m in rec["residual_misfit"][:8]]
     return [
-        "**Verdict: misfit remains.** The data show physics that the library does not hold: "
+        "**Verdict: misfit remains.** The data show physics that the library does not hold. "
         + helped
         + "No term is named as the cause. Where the law still fails:",
         "",
