@@ -37,7 +37,8 @@ fitted candidate of its round by the same standard (:func:`distinguished`: more 
 ``min_gain`` nats and ``se_factor`` SE of the paired difference). Those it does not beat
 are reported with it as *indistinguishable* on these data (:func:`rivals`;
 ``selected.indistinguishable`` in ``diagnosis.json``): drag and viscous damping, for one,
-are often told apart only by a wide spread of actuation frequencies.
+differ only in how they scale with the intrusion speed, and a small design often cannot
+tell them apart (half of the drag and viscous cases of the calibration study).
 
 The gain is also reported as a leave-one-*cell*-out estimate (PSIS over the summed
 log-likelihood of each cell): how much better the selected law predicts a setting it has

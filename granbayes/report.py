@@ -778,7 +778,8 @@ def _tie_lines(sel: Mapping) -> list[str]:
         "separate them would decide"
         + (
             " (drag grows with the square of the intrusion speed, viscous damping linearly: "
-            "a wider spread of actuation frequencies separates them)."
+            "jumps over a wider range of intrusion speeds, from more actuation frequencies "
+            "and commands, and more repeats per cell separate them)."
             if rate_pair
             else "."
         ),

@@ -791,7 +791,7 @@ def test_report_says_which_terms_the_data_cannot_tell_apart(drag_case, tmp_path:
     report = (tmp_path / "report.md").read_text()
     assert "**Not distinguished on these data:** **drag** from viscous (+0.3 ± 1.1" in report
     assert "not an established cause" in report
-    assert "wider spread of actuation frequencies" in report
+    assert "wider range of intrusion speeds" in report
 
 
 def test_log_predictive_density_of_fitted_jumps_is_the_mean_likelihood(drag_case) -> None:
