@@ -39,11 +39,14 @@ from granbayes import __version__
 from granbayes.calibration import (
     CASE_KINDS,
     DESIGN_RANGES,
+    FALSE_CLAIM,
     LIBRARY_EFFECTS,
     OUT_OF_LIBRARY,
+    OUTCOMES,
     STEP_BUDGET,
     clopper_pearson,
     diagnose_case,
+    outcome,
     rederive_verdicts,
     summarize,
 )
@@ -150,48 +153,14 @@ def gain_honesty(results: pd.DataFrame) -> pd.DataFrame | None:
     return pd.DataFrame(rows)
 
 
-#: Outcomes of a case, in the order they are stacked in the figure, and their colours.
-OUTCOMES = {
-    "right": "tab:green",
-    "right, with an indistinguishable term": "yellowgreen",
-    "not detected": "lightgrey",
-    "wrong term, truth reported as indistinguishable": "tab:orange",
-    "false claim": "tab:red",
-    "misfit_remains (library truth) / false alarm (null)": "tab:purple",
-    "over budget": "black",
-}
-
-
-def outcome(row) -> str:
-    """One case's outcome (:data:`OUTCOMES`)."""
-    added = row.added if isinstance(row.added, str) else ""
-    ties = getattr(row, "indistinguishable", "")
-    ties = ties.split("+") if isinstance(ties, str) and ties else []
-    if row.verdict == "over_budget":
-        return "over budget"
-    if row.kind == "null":
-        if added:
-            return "false claim"
-        return "right" if row.verdict == "baseline_adequate" else OUTCOME_MISFIT
-    if row.kind in LIBRARY_EFFECTS:
-        if added == row.kind and row.verdict == "extended":
-            return "right" if not ties else "right, with an indistinguishable term"
-        if added and added != row.kind:
-            if row.kind in ties:
-                return "wrong term, truth reported as indistinguishable"
-            return "false claim"
-        return "not detected" if row.verdict == "baseline_adequate" else OUTCOME_MISFIT
-    # out of the library
-    if row.verdict == "misfit_remains" or (
-        row.verdict == "extended" and row.n_residual_misfit == 0
-    ):
-        return "right" if not ties else "right, with an indistinguishable term"
-    if row.verdict == "extended":
-        return "false claim"
-    return "not detected"
-
-
-OUTCOME_MISFIT = "misfit_remains (library truth) / false alarm (null)"
+#: The colour of each outcome (``granbayes.calibration.OUTCOMES``, stacked in that order).
+COLOURS = dict(
+    zip(
+        OUTCOMES,
+        ("tab:green", "yellowgreen", "lightgrey", "tab:orange", "tab:red", "tab:purple", "black"),
+        strict=True,
+    )
+)
 
 
 def figure(results: pd.DataFrame, summary: pd.DataFrame) -> Figure:
@@ -202,7 +171,7 @@ def figure(results: pd.DataFrame, summary: pd.DataFrame) -> Figure:
     labels = results.apply(outcome, axis=1)
     x = np.arange(len(kinds))
     bottom = np.zeros(len(kinds))
-    for name, colour in OUTCOMES.items():
+    for name, colour in COLOURS.items():
         frac = np.array([float((labels[results["kind"] == k] == name).mean()) for k in kinds])
         if not frac.any():
             continue
@@ -254,9 +223,7 @@ def write_summary(
     )
     gains = gain_honesty(results)
     lib_rows = results[results["kind"].isin(LIBRARY_EFFECTS)]
-    lib_false = int(
-        sum(outcome(r) == "false claim" for r in lib_rows.itertuples()) if len(lib_rows) else 0
-    )
+    lib_false = int((lib_rows.apply(outcome, axis=1) == FALSE_CLAIM).sum()) if len(lib_rows) else 0
     lib_false_upper = clopper_pearson(lib_false, len(lib_rows), 0.90)[1] if len(lib_rows) else None
     doc = {
         "seed": seed,

@@ -51,12 +51,14 @@ __all__ = [
     "OUT_OF_LIBRARY",
     "STEP_BUDGET",
     "Case",
+    "OUTCOMES",
     "OverBudget",
     "StepCounter",
     "diagnose_case",
     "diagnose_folder",
     "clopper_pearson",
     "make_case",
+    "outcome",
     "rederive_verdicts",
     "summarize",
 ]
@@ -568,6 +570,65 @@ def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
     return lo, hi
 
 
+#: Outcomes of a case (:func:`outcome`), from right to wrong.
+RIGHT = "right"
+RIGHT_TIED = "right, with an indistinguishable term"
+NOT_DETECTED = "not detected"
+WRONG_TERM_TIED = "wrong term, truth reported as indistinguishable"
+FALSE_CLAIM = "false claim"
+MISFIT_OR_ALARM = "misfit_remains (library truth) / false alarm (null)"
+OVER_BUDGET = "over budget"
+OUTCOMES = (
+    RIGHT,
+    RIGHT_TIED,
+    NOT_DETECTED,
+    WRONG_TERM_TIED,
+    FALSE_CLAIM,
+    MISFIT_OR_ALARM,
+    OVER_BUDGET,
+)
+
+
+def outcome(row: Mapping[str, Any]) -> str:
+    """What one case of the study concluded, judged against its truth (:data:`OUTCOMES`).
+
+    Right is ``baseline_adequate`` for ``null``, ``extended`` with exactly the hidden term
+    for a library term, and ``misfit_remains`` or a law leaving no misfit for an
+    out-of-library effect; it is "with an indistinguishable term" when a term was reported
+    as tied with an added one. A wrong term named is a *false claim* unless the truth was
+    reported as indistinguishable from it.
+
+    Parameters
+    ----------
+    row : mapping
+        A row of :func:`diagnose_case` (``kind``, ``verdict``, ``added``,
+        ``n_residual_misfit``, optional ``indistinguishable``).
+
+    Returns
+    -------
+    str
+    """
+    added = row["added"] if isinstance(row["added"], str) else ""
+    ties = row.get("indistinguishable", "")
+    ties = ties.split("+") if isinstance(ties, str) and ties else []
+    kind, verdict = row["kind"], row["verdict"]
+    if verdict == "over_budget":
+        return OVER_BUDGET
+    if kind == "null":
+        if added:
+            return FALSE_CLAIM
+        return RIGHT if verdict == "baseline_adequate" else MISFIT_OR_ALARM
+    if kind in LIBRARY_EFFECTS:
+        if added == kind and verdict == "extended":
+            return RIGHT_TIED if ties else RIGHT
+        if added and added != kind:
+            return WRONG_TERM_TIED if kind in ties else FALSE_CLAIM
+        return NOT_DETECTED if verdict == "baseline_adequate" else MISFIT_OR_ALARM
+    if verdict == "misfit_remains" or (verdict == "extended" and row["n_residual_misfit"] == 0):
+        return RIGHT_TIED if ties else RIGHT
+    return FALSE_CLAIM if verdict == "extended" else NOT_DETECTED
+
+
 def summarize(results: pd.DataFrame) -> pd.DataFrame:
     """Error rates per case kind, with binomial standard errors.
 
@@ -604,21 +665,10 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
     for kind, g in results.groupby("kind", sort=False):
         n = len(g)
         tied = g["indistinguishable"] != ""
-        if kind == "null":
-            right = g["verdict"] == "baseline_adequate"
-            wrong_term = g["added"] != ""
-            false_claim = wrong_term
-        elif kind in LIBRARY_EFFECTS:
-            right = (g["verdict"] == "extended") & (g["added"] == kind)
-            wrong_term = (g["added"] != "") & (g["added"] != kind)
-            flagged = g["indistinguishable"].map(lambda t, k=kind: k in t.split("+"))
-            false_claim = wrong_term & ~flagged
-        else:
-            right = (g["verdict"] == "misfit_remains") | (
-                (g["verdict"] == "extended") & (g["n_residual_misfit"] == 0)
-            )
-            wrong_term = (g["verdict"] == "extended") & (g["n_residual_misfit"] > 0)
-            false_claim = wrong_term
+        label = g.apply(outcome, axis=1)
+        right = label.isin((RIGHT, RIGHT_TIED))
+        wrong_term = label.isin((WRONG_TERM_TIED, FALSE_CLAIM))
+        false_claim = label == FALSE_CLAIM
         p = float(right.mean())
         lo, hi = clopper_pearson(int(right.sum()), n)
         rows.append(
@@ -633,7 +683,7 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
                     f"verdict_{v}": float((g["verdict"] == v).mean())
                     for v in ("baseline_adequate", "extended", "misfit_remains")
                 },
-                "right_alone": float((right & ~tied).mean()),
+                "right_alone": float((label == RIGHT).mean()),
                 "ambiguous": float(tied.mean()),
                 "wrong_term": float(wrong_term.mean()),
                 "false_claim": float(false_claim.mean()),

@@ -23,6 +23,7 @@ from granbayes.calibration import (
     clopper_pearson,
     diagnose_case,
     make_case,
+    outcome,
     rederive_verdicts,
     summarize,
 )
@@ -185,7 +186,7 @@ def test_a_replicate_repeats_the_experiment_with_new_noise() -> None:
     N(0, sigma^2) draws: their standard deviation is sqrt(2) sigma, checked within 5 SE of
     a sample SD (SE ~ sd / sqrt(2 (n - 1)), n = 160 jumps).
     """
-    case, again, rep = make_case("drag", 3), make_case("drag", 3, replicate=0), None
+    case, again = make_case("drag", 3), make_case("drag", 3, replicate=0)
     rep = make_case("drag", 3, replicate=1)
     pd.testing.assert_frame_equal(case.table, again.table)
     assert rep.truth == case.truth
@@ -232,3 +233,46 @@ def test_a_case_row_scores_the_selected_law_on_fresh_data() -> None:
     assert row["gain_fresh"] > 0 and row["elpd_gain"] > 0
     assert row["gain_fresh_se"] > 0 and row["indistinguishable"] == ""
     print({k: row[k] for k in ("elpd_gain", "elpd_gain_se", "gain_fresh", "gain_fresh_se")})
+
+
+@pytest.mark.parametrize(
+    ("row", "expected"),
+    [
+        ({"kind": "null", "verdict": "baseline_adequate", "added": ""}, "right"),
+        ({"kind": "null", "verdict": "misfit_remains", "added": ""}, "misfit_remains"),
+        ({"kind": "null", "verdict": "extended", "added": "drag"}, "false claim"),
+        ({"kind": "drag", "verdict": "extended", "added": "drag"}, "right"),
+        (
+            {
+                "kind": "drag",
+                "verdict": "extended",
+                "added": "drag",
+                "indistinguishable": "viscous",
+            },
+            "right, with an indistinguishable term",
+        ),
+        (
+            {
+                "kind": "drag",
+                "verdict": "extended",
+                "added": "viscous",
+                "indistinguishable": "drag",
+            },
+            "wrong term, truth reported as indistinguishable",
+        ),
+        ({"kind": "drag", "verdict": "extended", "added": "viscous"}, "false claim"),
+        # the true term added but misfit left: not right, and not a wrong term either
+        ({"kind": "unloading", "verdict": "misfit_remains", "added": "unloading"}, "misfit"),
+        ({"kind": "drag", "verdict": "baseline_adequate", "added": ""}, "not detected"),
+        ({"kind": "rate_stiffening", "verdict": "misfit_remains", "added": "viscous"}, "right"),
+        ({"kind": "rate_stiffening", "verdict": "baseline_adequate", "added": ""}, "not detected"),
+        ({"kind": "drag", "verdict": "over_budget", "added": ""}, "over budget"),
+    ],
+)
+def test_outcome_judges_a_case_against_its_truth(row: dict, expected: str) -> None:
+    """The one judgement the summary table and the study's figure both read."""
+    got = outcome({"n_residual_misfit": 1, **row})
+    assert got.startswith(expected)
+    one = summarize(pd.DataFrame([{**_row(row["kind"], []), **row}])).iloc[0]
+    assert bool(one["right"]) == got.startswith("right")
+    assert bool(one["false_claim"]) == (got == "false claim")
