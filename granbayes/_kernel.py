@@ -8,7 +8,8 @@ events, so every non-smooth point of physics-model.md is an event the integrator
 * bed regime changes: advancing -> contact (the foot stops advancing, ``z' = 0``),
   contact -> advancing (the foot reaches ``z_max``), contact -> free (the unloading line
   reaches zero force), free -> contact;
-* the jump apex (``x_f' = 0`` inside the height window, no restart) and touchdown.
+* the jump apex (``x_f' = 0`` inside the height window, no restart) and touchdown (the
+  first fall through the surface after a flight of ``H_FLIGHT`` once the command has ended).
 
 Where the foot is not advancing (elastic contact on the unloading line, or no ground force)
 the robot is a linear 2-DOF system with constant or sinusoidal forcing; there the steps
@@ -133,6 +134,11 @@ LIN_BISECT = 5
 
 #: Tolerance of event location relative to the absolute integration tolerances.
 EVENT_TOL = 1e-4
+
+#: Flight that makes a touchdown end the jump [m] (physics-model.md section 5): after the
+#: command has ended, the foot must have been at least this high above the surface (about a
+#: grain) before falling through it; a graze of the surface by micrometres does not end it.
+H_FLIGHT = 1e-3
 
 # events (each is g(y) crossing from <= 0 to > 0)
 _EV_NONE = -1
@@ -1040,6 +1046,9 @@ def simulate_one(row, seg, meta, opts, rec, record):
     n_rec = _record(rec, 0, t, y, mode, c) if record else 0
     in_window = push == 0
     height = y[1] if in_window else -np.inf
+    # a flight after the command has ended (x_f >= H_FLIGHT): only then does a touchdown
+    # end the jump
+    flown = False
     h = min(1e-4, hmax)
     n_steps = 0
     f_ok = True
@@ -1062,9 +1071,13 @@ def simulate_one(row, seg, meta, opts, rec, record):
                     lo, hi = -c[_C_ZMAX], -c[_C_ZFREE]
                 else:
                     lo, hi = -c[_C_ZFREE], np.inf
-                if si >= nseg and y[1] >= 0.0:
+                if si >= nseg and flown and y[1] >= 0.0:
                     lo = max(lo, 0.0)  # touchdown ends the jump
                 top = height if in_window else np.inf
+                if si >= nseg and not flown:
+                    # no flight inside a proved step (x_f stays below H_FLIGHT, or rises
+                    # throughout): the step's end tells whether the foot has flown
+                    top = min(top, H_FLIGHT)
                 a1, a2, c0, s0 = _lin_modal(t, y, c)
                 modal = True
                 tau = _lin_safe(t, y, a1, a2, c0, s0, c, lo, hi, top, h_next, tau_max)
@@ -1131,12 +1144,15 @@ def simulate_one(row, seg, meta, opts, rec, record):
             if s < s_end:
                 s_end, event, y1, f1 = s, kind, ye, fe
         # jump height: endpoint and interior maximum of x_f
+        step_top = y1[1]
         if in_window:
             if y[3] > 0.0 and y1[3] < 0.0 and not safe:
                 _, ya, _ = _locate(_EV_APEX, t, y, f, y1, f1, s_end, mode, c, tol)
-                height = max(height, ya[1])
-            height = max(height, y1[1])
-        touchdown = si >= nseg and y[1] >= 0.0 and y1[1] < 0.0
+                step_top = max(step_top, ya[1])
+            height = max(height, step_top)
+        if si >= nseg and step_top >= H_FLIGHT:
+            flown = True
+        touchdown = si >= nseg and flown and y1[1] < 0.0
         t = t_stop if (landing and event == _EV_NONE) else t + s_end
         y, f = y1, f1
         f_ok = not safe  # after a proved step f is computed when (if) it is needed
@@ -1155,6 +1171,8 @@ def simulate_one(row, seg, meta, opts, rec, record):
             if si == push:
                 in_window = True
                 height = max(height, y[1])
+            if si == nseg and y[1] >= H_FLIGHT:
+                flown = True
             f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
             f_ok = True
             if closed:

@@ -51,10 +51,12 @@ How the non-smooth model is integrated
   function is positive there, the crossing is located on the dense output and the regime
   changes from that point.
 * The jump height is the largest foot height ``x_f`` from the start of the push-off
-  segment until the first downward crossing of ``x_f = 0`` after the command has ended (a
-  terminal event), or ``window_after`` after the command end. Interior maxima are found with
-  a non-terminal event on ``x_f' = 0`` (downward), and the states at every restart are
-  included.
+  segment until the first downward crossing of ``x_f = 0`` after the command has ended that
+  follows a flight (the foot at least :data:`H_FLIGHT` above the surface at the command's
+  end or later: a terminal event on ``x_f = H_FLIGHT`` upward arms the touchdown, itself a
+  terminal event), or ``window_after`` after the command end. Interior maxima are found
+  with a non-terminal event on ``x_f' = 0`` (downward), and the states at every restart
+  are included.
 
 Examples
 --------
@@ -101,6 +103,8 @@ CONE_TAN = math.tan(math.radians(60.0))
 CONE_MU = 2.0
 #: Grain-scale compaction length l_c [m] of the ``compaction`` term (physics-model.md s. 8).
 COMPACTION_LENGTH = 1e-3
+#: The flight after which a touchdown ends the jump [m] (physics-model.md section 5).
+H_FLIGHT = 1e-3
 
 #: The optional force parameters whose physics this oracle implements. Listed here rather
 #: than read from the registry, so that a term added to :mod:`granbayes.forces` but not to
@@ -547,7 +551,11 @@ def simulate_height_scipy(
     def touchdown(t: float, y: np.ndarray) -> float:  # x_f crosses zero downward
         return -y[1]
 
+    def flight(t: float, y: np.ndarray) -> float:  # x_f reaches H_FLIGHT upward
+        return y[1] - H_FLIGHT
+
     height = -math.inf
+    flown = False  # a flight after the command has ended: only then a touchdown ends it
     t = 0.0
     last_peak = -1  # index of the watch whose peak stopped the previous run, if any
     for index, (t_start, t_stop, coef) in enumerate(pieces):
@@ -555,6 +563,8 @@ def simulate_height_scipy(
         after_command = index == len(pieces) - 1
         if in_window:
             height = max(height, y[1])
+        if after_command and y[1] >= H_FLIGHT:
+            flown = True
         while t < t_stop:
             rhs = _rhs_factory(const, bed, mode, omega, coef, t_start)
             watches = _watches(mode, bed, const, rhs)
@@ -569,9 +579,12 @@ def simulate_height_scipy(
             if in_window:
                 labels.append(("apex", -1))
                 events.append(apex)
-            if after_command:
+            if after_command and flown:
                 labels.append(("touchdown", -1))
                 events.append(_armed(touchdown, 1e-13, t, y))
+            elif after_command:
+                labels.append(("flight", -1))
+                events.append(_armed(flight, 1e-13, t, y))
             sol = solve_ivp(
                 rhs,
                 (t, t_stop),
@@ -617,6 +630,8 @@ def simulate_height_scipy(
                 t = t_stop
             elif kind == "touchdown":
                 return float(1e3 * height)
+            elif kind == "flight":
+                flown = True
             elif kind == "crossing":
                 mode = _switch(watches[which].name, y, bed, const)
             # kind == "peak" without a crossing: a local maximum short of the regime's end;

@@ -1244,6 +1244,61 @@ def test_height_window_closes_window_after_the_command_if_still_airborne() -> No
     assert traj.height_mm < height("single", {"k": 3000.0, "r_unload": 1.0}) - 1.0
 
 
+#: The grazing case of the verdict study (null case 4 of its first runs, SYNTHETIC robot of
+#: ``granbayes.calibration``): at the end of a 12 Hz delayed stutter on phi = 0.607 the foot
+#: sits at the surface and, for k in about (1962.9, 1965.1) N/m, falls through it by less
+#: than 0.1 mm (a tenth of a grain) before it jumps ~9.5 mm. Under the contract before 2026-11-26 that graze
+#: ended the jump at ~0.1 mm.
+GRAZE_ROBOT = Robot(
+    m_motor=0.9817830293780063,
+    m_rod=0.2641413138276012,
+    m_foot=0.09258289553240551,
+    k_spring=4856.959267515818,
+    c_spring=4.900005369056386,
+    foot_radius=0.03983808792481511,
+)
+GRAZE_EXPERIMENT = Experiment(
+    robot=GRAZE_ROBOT, command=CommandSettings(amplitude_mm=16.403597907149862, freq_hz=12.0)
+)
+GRAZE_PHI = 0.607
+GRAZE_K = 1964.0  # N/m, inside the window of the old definition
+
+
+def test_a_graze_of_the_surface_does_not_end_the_jump() -> None:
+    """Section 5 (2026-11-26): a touchdown ends the jump only after a flight of >= 1 mm.
+
+    The case is a real graze (after the command has ended the foot dips below the surface
+    by less than 0.1 mm, then flies), yet the height is the flight's apex, ~9.5 mm, as
+    the independent oracle finds too (within 0.05 mm, the contract's tolerance).
+    """
+    traj = simulate_trajectory(
+        "delayed_stutter", GRAZE_PHI, {"k": GRAZE_K}, experiment=GRAZE_EXPERIMENT
+    )
+    data = traj.data
+    after = data[data["t_s"] >= traj.program.t_end]
+    first_apex = after["x_foot_mm"].idxmax()
+    dip = after.loc[: first_apex, "x_foot_mm"].min()
+    assert -0.1 < dip < 0.0, f"not a graze: lowest foot before the apex {dip:.4f} mm"
+    assert traj.height_mm > 9.0
+    oracle = simulate_height_scipy(
+        "delayed_stutter", GRAZE_PHI, {"k": GRAZE_K}, experiment=GRAZE_EXPERIMENT
+    )
+    assert traj.height_mm == pytest.approx(oracle, abs=0.05)
+
+
+def test_height_is_continuous_in_k_across_the_old_graze_window() -> None:
+    """No jump of the height over k in [1955, 1975] N/m (steps of 0.05 N/m).
+
+    Before 2026-11-26 the height fell from ~9.5 mm to ~0.1 mm over (1962.9, 1965.1) N/m;
+    now neighbouring heights differ by less than 0.01 mm (the slope is ~0.05 mm per N/m).
+    """
+    ks = np.linspace(1955.0, 1975.0, 401)
+    res = simulate("delayed_stutter", GRAZE_PHI, {"k": ks}, experiment=GRAZE_EXPERIMENT)
+    assert np.all(res.ok)
+    assert np.max(np.abs(np.diff(res.height_mm))) < 0.01
+    assert res.height_mm.min() > 9.0
+
+
 # ========================================================================================
 # 9. the compaction term (physics-model.md section 8)
 def kernel_bed(params: Mapping[str, float]) -> np.ndarray:
