@@ -1247,8 +1247,8 @@ def test_height_window_closes_window_after_the_command_if_still_airborne() -> No
 #: The grazing case of the verdict study (null case 4 of its first runs, SYNTHETIC robot of
 #: ``granbayes.calibration``): at the end of a 12 Hz delayed stutter on phi = 0.607 the foot
 #: sits at the surface and, for k in about (1962.9, 1965.1) N/m, falls through it by less
-#: than 0.1 mm (a tenth of a grain) before it jumps ~9.5 mm. Under the contract before 2026-11-26 that graze
-#: ended the jump at ~0.1 mm.
+#: than 0.1 mm (a tenth of a grain) before it jumps ~9.5 mm. Under the contract before
+#: 2026-11-26 that graze ended the jump at ~0.1 mm.
 GRAZE_ROBOT = Robot(
     m_motor=0.9817830293780063,
     m_rod=0.2641413138276012,
@@ -1277,7 +1277,7 @@ def test_a_graze_of_the_surface_does_not_end_the_jump() -> None:
     data = traj.data
     after = data[data["t_s"] >= traj.program.t_end]
     first_apex = after["x_foot_mm"].idxmax()
-    dip = after.loc[: first_apex, "x_foot_mm"].min()
+    dip = after.loc[:first_apex, "x_foot_mm"].min()
     assert -0.1 < dip < 0.0, f"not a graze: lowest foot before the apex {dip:.4f} mm"
     assert traj.height_mm > 9.0
     oracle = simulate_height_scipy(
