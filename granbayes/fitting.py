@@ -20,7 +20,7 @@ import dataclasses
 import hashlib
 import json
 import warnings
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -35,9 +35,16 @@ from ._deprecated import alias_getattr
 from ._provenance import environment
 from .experiment import COMMAND_NAMES, Experiment
 from .forces import PARAMETERS, terms_of
-from .likelihood import JumpModel, NoiseFamily, Observations, PhiMode, SigmaMode
+from .likelihood import (
+    JumpModel,
+    NoiseFamily,
+    Observations,
+    PhiMode,
+    SigmaMode,
+    evaluate_models,
+)
 from .priors import Prior, default_priors
-from .sampler import ProgressInfo, SamplerRun, SamplerSettings, run_ensembles
+from .sampler import ProgressInfo, RunSpec, SamplerRun, SamplerSettings, run_side_by_side
 from .simulator import SolverSettings
 
 #: The "off" value of every force parameter (its term absent).
@@ -162,6 +169,16 @@ class FitPart:
     run: SamplerRun
     jumps: np.ndarray  # rows of the full table this part fitted
 
+    @property
+    def log_lik(self) -> np.ndarray:
+        """Pointwise log-likelihood of the kept draws, shape (chain, draw, n_obs)."""
+        return self.run.blobs[..., : self.model.obs.n_obs]
+
+    @property
+    def config_heights_mm(self) -> np.ndarray:
+        """Simulated height of each configuration at the kept draws [mm], (chain, draw, m)."""
+        return self.run.blobs[..., self.model.obs.n_obs :]
+
 
 @dataclass
 class FitResult:
@@ -272,46 +289,90 @@ def find_starts(
     -------
     list of ndarray, each of shape (n_walkers, ndim)
     """
-    ndim = model.ndim
-    lo, hi = model.bounds_u.T
-    width = hi - lo
-    n_prior = max(32, 16 * ndim) * n_ensembles
-    draws = model.sample_prior(rng, n_prior)
-    lp = model(draws)[0]
-    best_x, best_lp = [], []
-    for e in range(n_ensembles):
-        group = np.arange(e, n_prior, n_ensembles)
-        i = group[int(np.argmax(lp[group]))]
-        best_x.append(draws[i].copy())
-        best_lp.append(lp[i])
-    if warm is not None:
-        warm_lp = model(warm)[0]
-        best_x[0], best_lp[0] = warm[int(np.argmax(warm_lp))].copy(), float(np.max(warm_lp))
-    x, f = np.array(best_x), np.array(best_lp)
-    scale = np.tile(0.05 * width, (n_ensembles, 1))
+    return _find_starts_many([model], [rng], n_ensembles, [n_walkers], [warm])[0]
+
+
+def _find_starts_many(
+    models: Sequence[JumpModel],
+    rngs: Sequence[np.random.Generator],
+    n_ensembles: int,
+    n_walkers: Sequence[int],
+    warms: Sequence[np.ndarray | None],
+) -> list[list[np.ndarray]]:
+    """:func:`find_starts` for several models at once, their simulations in one batch.
+
+    Each model draws from its own generator in the order :func:`find_starts` does, so its
+    starts are those of :func:`find_starts` alone.
+    """
+    k = len(models)
+    ndims = [m.ndim for m in models]
+    bounds = [m.bounds_u.T for m in models]
+    n_prior = [max(32, 16 * d) * n_ensembles for d in ndims]
+    draws = [m.sample_prior(rng, n) for m, rng, n in zip(models, rngs, n_prior, strict=True)]
+    lps = [ev.log_prob for ev in evaluate_models(models, draws)]
+    with_warm = [i for i in range(k) if warms[i] is not None]
+    warm_lps = dict(
+        zip(
+            with_warm,
+            (
+                ev.log_prob
+                for ev in evaluate_models(
+                    [models[i] for i in with_warm], [warms[i] for i in with_warm]
+                )
+            ),
+            strict=True,
+        )
+    )
+    x, f, scale = [], [], []
+    for i in range(k):
+        best_x, best_lp = [], []
+        for e in range(n_ensembles):
+            group = np.arange(e, n_prior[i], n_ensembles)
+            j = group[int(np.argmax(lps[i][group]))]
+            best_x.append(draws[i][j].copy())
+            best_lp.append(lps[i][j])
+        if i in warm_lps:
+            w = warm_lps[i]
+            best_x[0], best_lp[0] = warms[i][int(np.argmax(w))].copy(), float(np.max(w))
+        x.append(np.array(best_x))
+        f.append(np.array(best_lp))
+        lo, hi = bounds[i]
+        scale.append(np.tile(0.05 * (hi - lo), (n_ensembles, 1)))
     n_prop = 24
     for _ in range(12):
-        prop = x[:, None, :] + scale[:, None, :] * rng.standard_normal((n_ensembles, n_prop, ndim))
-        prop = np.clip(prop, lo, hi)
-        f_prop = model(prop.reshape(-1, ndim))[0].reshape(n_ensembles, n_prop)
-        j = np.argmax(f_prop, axis=1)
-        better = f_prop[np.arange(n_ensembles), j] > f
-        x[better] = prop[better, j[better]]
-        f[better] = f_prop[better, j[better]]
-        scale[~better] *= 0.5
+        props = []
+        for i in range(k):
+            lo, hi = bounds[i]
+            step = rngs[i].standard_normal((n_ensembles, n_prop, ndims[i]))
+            props.append(np.clip(x[i][:, None, :] + scale[i][:, None, :] * step, lo, hi))
+        evs = evaluate_models(models, [p.reshape(-1, d) for p, d in zip(props, ndims, strict=True)])
+        for i, ev in enumerate(evs):
+            f_prop = ev.log_prob.reshape(n_ensembles, n_prop)
+            j = np.argmax(f_prop, axis=1)
+            better = f_prop[np.arange(n_ensembles), j] > f[i]
+            x[i][better] = props[i][better, j[better]]
+            f[i][better] = f_prop[better, j[better]]
+            scale[i][~better] *= 0.5
     out = []
-    for e in range(n_ensembles):
-        if e == 0 and warm is not None:
-            pick = rng.choice(len(warm), size=n_walkers, replace=len(warm) < n_walkers)
-            ball = warm[pick] + 1e-3 * width * np.abs(rng.standard_normal((n_walkers, ndim)))
-            out.append(np.clip(ball, lo, hi))
-            continue
-        sd = np.maximum(scale[e], 1e-3 * width)
-        pos = np.empty((0, ndim))
-        while len(pos) < n_walkers:
-            ball = x[e] + sd * rng.standard_normal((2 * n_walkers, ndim))
-            pos = np.concatenate([pos, ball[np.isfinite(model.log_prior(ball))]])
-        out.append(pos[:n_walkers])
+    for i, model in enumerate(models):
+        lo, hi = bounds[i]
+        width = hi - lo
+        rng, nw, ndim = rngs[i], n_walkers[i], ndims[i]
+        starts = []
+        for e in range(n_ensembles):
+            if e == 0 and warms[i] is not None:
+                warm = warms[i]
+                pick = rng.choice(len(warm), size=nw, replace=len(warm) < nw)
+                ball = warm[pick] + 1e-3 * width * np.abs(rng.standard_normal((nw, ndim)))
+                starts.append(np.clip(ball, lo, hi))
+                continue
+            sd = np.maximum(scale[i][e], 1e-3 * width)
+            pos = np.empty((0, ndim))
+            while len(pos) < nw:
+                ball = x[i][e] + sd * rng.standard_normal((2 * nw, ndim))
+                pos = np.concatenate([pos, ball[np.isfinite(model.log_prior(ball))]])
+            starts.append(pos[:nw])
+        out.append(starts)
     return out
 
 
@@ -319,40 +380,76 @@ def _seeds(seed: int, n: int) -> list[int]:
     return [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(n)]
 
 
-def _run_part(
-    label: str,
-    model: JumpModel,
-    jumps: np.ndarray,
+def _sampling_fn(models: Sequence[JumpModel]):
+    """The batched log-probability of runs side by side (:func:`run_side_by_side`).
+
+    Each walker's blob is its pointwise log-likelihood followed by the simulated height of
+    every configuration [mm], so the kept draws carry their simulated heights and the
+    posterior predictive needs no second simulation.
+    """
+
+    def evaluate(xs: Mapping[int, np.ndarray]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        order = list(xs)
+        evs = evaluate_models([models[i] for i in order], [xs[i] for i in order])
+        return {
+            i: (ev.log_prob, np.concatenate([ev.log_lik, ev.heights_mm], axis=1))
+            for i, ev in zip(order, evs, strict=True)
+        }
+
+    return evaluate
+
+
+def _run_parts(
+    specs: Sequence[tuple[str, JumpModel, np.ndarray]],
     config: FitSettings,
-    seed: int,
+    seeds: Sequence[int],
     backend: Path | None,
     resume: bool,
-    warm: np.ndarray | None = None,
+    warms: Sequence[np.ndarray | None] | None = None,
     progress: Callable[[str, ProgressInfo], None] | None = None,
-) -> FitPart:
-    rng = np.random.default_rng(seed)
-    s = config.sampler
-    n_walkers = s.walkers_for(model.ndim)
-    checkpoint = None if backend is None else Path(backend) / f"{label}.h5"
-    resuming = resume and checkpoint is not None and checkpoint.exists()
-    if resuming:
-        initial = [np.zeros((n_walkers, model.ndim))] * s.n_ensembles
-    else:
-        initial = find_starts(model, rng, s.n_ensembles, n_walkers, warm)
-    if checkpoint is not None:
-        checkpoint.parent.mkdir(parents=True, exist_ok=True)
-    run = run_ensembles(
-        model,
-        initial,
-        model.obs.n_obs,
-        seed=seed,
-        settings=s,
-        checkpoint=checkpoint,
-        resume=resume,
-        fingerprint=_fingerprint(model, config, seed),
-        progress=None if progress is None else (lambda info: progress(label, info)),
+    settings: SamplerSettings | None = None,
+) -> list[FitPart]:
+    """Sample the runs of a fit side by side (one simulator call per round for all)."""
+    s = settings or config.sampler
+    warms = list(warms) if warms is not None else [None] * len(specs)
+    models = [model for _, model, _ in specs]
+    checkpoints = [
+        None if backend is None else Path(backend) / f"{label}.h5" for label, _, _ in specs
+    ]
+    fresh = [i for i, c in enumerate(checkpoints) if not (resume and c is not None and c.exists())]
+    starts = _find_starts_many(
+        [models[i] for i in fresh],
+        [np.random.default_rng(seeds[i]) for i in fresh],
+        s.n_ensembles,
+        [s.walkers_for(models[i].ndim) for i in fresh],
+        [warms[i] for i in fresh],
     )
-    return FitPart(label, model, run, jumps)
+    initial = {i: st for i, st in zip(fresh, starts, strict=True)}
+    runs = []
+    for i, (label, model, _) in enumerate(specs):
+        n_walkers = s.walkers_for(model.ndim)
+        if checkpoints[i] is not None:
+            checkpoints[i].parent.mkdir(parents=True, exist_ok=True)
+        runs.append(
+            RunSpec(
+                initial.get(i, [np.zeros((n_walkers, model.ndim))] * s.n_ensembles),
+                model.obs.n_obs + len(model.obs.configs),
+                seed=seeds[i],
+                checkpoint=checkpoints[i],
+                resume=resume,
+                fingerprint=_fingerprint(model, config, seeds[i]),
+                progress=None if progress is None else _labelled(progress, label),
+            )
+        )
+    sampled = run_side_by_side(_sampling_fn(models), runs, s)
+    return [
+        FitPart(label, model, run, jumps)
+        for (label, model, jumps), run in zip(specs, sampled, strict=True)
+    ]
+
+
+def _labelled(progress: Callable[[str, ProgressInfo], None], label: str):
+    return lambda info: progress(label, info)
 
 
 def _fingerprint(model: JumpModel, config: FitSettings, seed: int) -> str:
@@ -361,6 +458,7 @@ def _fingerprint(model: JumpModel, config: FitSettings, seed: int) -> str:
     h.update(data_hash(model.experiment, model.obs.table).encode())
     h.update(repr(sorted((k, dataclasses.astuple(v)) for k, v in model.priors.items())).encode())
     h.update(repr((model.coordinate_names, config.to_dict(), seed)).encode())
+    h.update(b"blobs: log-likelihood per jump, then simulated height per configuration")
     return h.hexdigest()
 
 
@@ -476,15 +574,14 @@ def fit(
     priors = dict(priors if priors is not None else default_priors())
     table = _prepare(table)
     backend = Path(backend) if backend is not None else None
-    parts: list[FitPart] = []
     specs = part_models(experiment, table, config, priors)
-    for (label, model, jumps), part_seed in zip(specs, _seeds(seed, len(specs)), strict=True):
-        warm = None
-        if warm_start is not None and config.phi_mode == "per_phi":
-            warm = _warm_positions(model, warm_start, float(model.phis[0]))
-        parts.append(
-            _run_part(label, model, jumps, config, part_seed, backend, resume, warm, progress)
-        )
+    warms = [
+        _warm_positions(model, warm_start, float(model.phis[0]))
+        if warm_start is not None and config.phi_mode == "per_phi"
+        else None
+        for _, model, _ in specs
+    ]
+    parts = _run_parts(specs, config, _seeds(seed, len(specs)), backend, resume, warms, progress)
     return _assemble(parts, experiment, table, config, priors, seed, data_source)
 
 
@@ -643,11 +740,16 @@ def _screen_part(
 
 # ----------------------------------------------------------------------------------------
 def _replicate(part: FitPart, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Simulated mean heights and noisy replicates for the kept draws: (chain, draw, obs)."""
+    """Simulated mean heights and noisy replicates for the kept draws: (chain, draw, obs).
+
+    The simulated heights are those the sampler computed for the draws (their blobs); the
+    replicates add one draw of the observation noise each.
+    """
     c, d, ndim = part.run.samples.shape
-    mean, rep = part.model.sample_predictive(
-        part.run.samples.reshape(-1, ndim), np.random.default_rng(seed)
-    )
+    obs = part.model.obs
+    mean = part.config_heights_mm.reshape(c * d, -1)[:, obs.config_of_obs]
+    sigma = part.model._sigma_of(part.run.samples.reshape(-1, ndim), obs)
+    rep = part.model.add_noise(mean, sigma, np.random.default_rng(seed))
     return mean.reshape(c, d, -1), rep.reshape(c, d, -1)
 
 
@@ -812,8 +914,11 @@ def _draws(
         for n in post:
             v = values[n].reshape(n_chain, n_draw, len(phis))
             post[n][..., cols] = v[..., cols]
-        loglik[..., part.jumps] = _to_shape(r.blobs, n_chain, n_draw)
-        trimmed = dataclasses.replace(part, run=dataclasses.replace(r, samples=samples))
+        loglik[..., part.jumps] = _to_shape(part.log_lik, n_chain, n_draw)
+        trimmed = dataclasses.replace(
+            part,
+            run=dataclasses.replace(r, samples=samples, blobs=_to_shape(r.blobs, n_chain, n_draw)),
+        )
         sim[..., part.jumps], rep[..., part.jumps] = _replicate(trimmed, rep_seed)
         lp[..., i] = _to_shape(r.log_prob, n_chain, n_draw)
         log_prior += part.model.log_prior_density(flat).reshape(n_chain, n_draw)
@@ -1007,30 +1112,30 @@ def compare_commands(
     rows = []
     per_command_rows = []
     seeds = iter(_seeds(seed + 7, 5 * len(shared.parts)))
-    for part in shared.parts:
+    # every command of every volume fraction: one run each, all sampled side by side
+    specs, spec_seeds, owner = [], [], []
+    for k, part in enumerate(shared.parts):
         phi = float(part.model.phis[0])
-        sub_parts = []
         for command in COMMAND_NAMES:
             sub = table[(table["phi"] == phi) & (table["command"] == command)]
             if sub.empty:
                 continue
             obs = Observations.from_table(sub)
             model = _make_model(obs, experiment, config, priors, "shared")
-            sub_parts.append(
-                (
-                    command,
-                    _run_part(
-                        command, model, sub["jump"].to_numpy(), config, next(seeds), None, False
-                    ),
-                )
-            )
+            specs.append((command, model, sub["jump"].to_numpy()))
+            spec_seeds.append(next(seeds))
+            owner.append(k)
+    fitted = _run_parts(specs, config, spec_seeds, None, False)
+    for k, part in enumerate(shared.parts):
+        phi = float(part.model.phis[0])
+        sub_parts = [(p.label, p) for p, o in zip(fitted, owner, strict=True) if o == k]
         n_chain, n_draw = _common_shape([part, *(p for _, p in sub_parts)])
         order = np.concatenate([p.jumps for _, p in sub_parts])
         ll_sep = np.concatenate(
-            [_to_shape(p.run.blobs, n_chain, n_draw) for _, p in sub_parts], axis=-1
+            [_to_shape(p.log_lik, n_chain, n_draw) for _, p in sub_parts], axis=-1
         )
         pos = {j: i for i, j in enumerate(part.jumps)}
-        ll_shared = _to_shape(part.run.blobs, n_chain, n_draw)[..., [pos[j] for j in order]]
+        ll_shared = _to_shape(part.log_lik, n_chain, n_draw)[..., [pos[j] for j in order]]
         models = {"shared": ll_shared, "per_command": ll_sep}
         loo = {k: gdt.loo(v) for k, v in models.items()}
         diff, diff_se = gdt.elpd_difference(loo["shared"]["elpd_i"], loo["per_command"]["elpd_i"])

@@ -38,7 +38,16 @@ from .forces import PARAMETERS, TERMS, terms_of
 from .priors import Prior, default_priors
 from .simulator import SolverSettings, build_rows, simulate_rows
 
-__all__ = ["Observations", "JumpModel", "SETTING_COLUMNS", "PhiMode", "NoiseFamily", "SigmaMode"]
+__all__ = [
+    "Evaluation",
+    "JumpModel",
+    "NoiseFamily",
+    "Observations",
+    "PhiMode",
+    "SETTING_COLUMNS",
+    "SigmaMode",
+    "evaluate_models",
+]
 
 #: Parametrisation of a model across volume fractions (module docstring).
 PhiMode = Literal["shared", "quadratic"]
@@ -357,6 +366,42 @@ class JumpModel:
         return sig
 
     # ------------------------------------------------------------------------------------
+    def simulation_rows(
+        self, u: np.ndarray, observations: Observations | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Integrator rows of every (walker, configuration) pair, walker-major.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Walker positions.
+        observations : Observations, optional
+            Configurations to simulate (default: the model's data).
+
+        Returns
+        -------
+        rows : ndarray, shape (n * n_configs, len(ROW_FIELDS))
+        program_index : ndarray of int, shape (n * n_configs,)
+            Index of each row's program in ``observations.programs``.
+        """
+        u = np.atleast_2d(u)
+        obs = observations or self.obs
+        config_phi = obs.config_phi
+        n, m = u.shape[0], len(config_phi)
+        x_eval = np.zeros(1) if self.phi_mode == "shared" else config_phi - self.experiment.phi_c
+        values = {
+            name: self.priors[name].to_value(v) for name, v in self._parameter_u(u, x_eval).items()
+        }
+        params: dict[str, np.ndarray] = {}
+        for p in PARAMETERS:
+            if p.name in values:
+                params[p.name] = np.broadcast_to(values[p.name], (n, m)).reshape(-1)
+            elif p.name in self.fixed:
+                params[p.name] = np.full(n * m, float(self.fixed[p.name]))
+        phi = np.broadcast_to(config_phi, (n, m)).reshape(-1)
+        rows = build_rows(self.experiment.robot, phi, params)
+        return rows, np.tile(np.arange(m), n)
+
     def predict(
         self,
         u: np.ndarray,
@@ -380,31 +425,12 @@ class JumpModel:
         """
         u = np.atleast_2d(u)
         obs = observations or self.obs
-        config_phi = obs.config_phi
-        x = config_phi - self.experiment.phi_c
-        n, m = u.shape[0], len(config_phi)
-        if self.phi_mode == "shared":
-            x_eval = np.zeros(1)
-        else:
-            x_eval = x
-        values = {
-            name: self.priors[name].to_value(v) for name, v in self._parameter_u(u, x_eval).items()
-        }
-        params: dict[str, np.ndarray] = {}
-        for p in PARAMETERS:
-            if p.name in values:
-                params[p.name] = np.broadcast_to(values[p.name], (n, m)).reshape(-1)
-            elif p.name in self.fixed:
-                params[p.name] = np.full(n * m, float(self.fixed[p.name]))
-        phi = np.broadcast_to(config_phi, (n, m)).reshape(-1)
-        rows = build_rows(self.experiment.robot, phi, params)
-        index = np.tile(np.arange(m), n)
+        rows, index = self.simulation_rows(u, obs)
         res = simulate_rows(
             rows, obs.programs, index, options=self.options, n_threads=self.n_threads
         )
-        heights = res.height_mm.reshape(n, m)
-        ok = np.all(res.ok.reshape(n, m), axis=1)
-        return heights, ok
+        heights = res.height_mm.reshape(u.shape[0], -1)
+        return heights, np.all(res.ok.reshape(heights.shape), axis=1)
 
     # ------------------------------------------------------------------------------------
     # the observation model: the only place where the noise family is written down
@@ -567,19 +593,8 @@ class JumpModel:
         log_lik : ndarray, shape (n, n_obs)
             Pointwise log-likelihood (``-inf`` rows where ``log_prob`` is ``-inf``).
         """
-        u = np.atleast_2d(np.asarray(u, dtype=float))
-        lp = self.log_prior(u)
-        loglik = np.full((u.shape[0], self.obs.n_obs), -np.inf)
-        good = np.isfinite(lp)
-        if np.any(good):
-            heights, ok = self.predict(u[good])
-            ll = self.log_likelihood(u[good], heights)
-            ll[~ok] = -np.inf
-            loglik[good] = ll
-            total = ll.sum(axis=1)
-            total[~np.isfinite(total)] = -np.inf
-            lp[good] = lp[good] + total
-        return lp, loglik
+        ev = evaluate_models([self], [u])[0]
+        return ev.log_prob, ev.log_lik
 
     def sample_prior(self, rng: np.random.Generator, size: int) -> np.ndarray:
         """Draw walker positions from the prior (quadratic mode: bound-respecting).
@@ -607,3 +622,98 @@ class JumpModel:
             if len(out) >= size:
                 return out[:size]
         raise RuntimeError("could not draw from the prior within its bounds")
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """The log-posterior of walker positions under one model, with what it was made of.
+
+    Attributes
+    ----------
+    log_prob : ndarray, shape (n,)
+        Log prior + log likelihood [nats]; ``-inf`` outside the prior or where a
+        simulation failed.
+    log_lik : ndarray, shape (n, n_obs)
+        Pointwise log-likelihood of the model's jumps (``-inf`` rows where ``log_prob`` is
+        ``-inf``).
+    heights_mm : ndarray, shape (n, n_configs)
+        Simulated height of every configuration [mm] (NaN outside the prior).
+    """
+
+    log_prob: np.ndarray
+    log_lik: np.ndarray
+    heights_mm: np.ndarray
+
+
+def evaluate_models(
+    models: Sequence[JumpModel], positions: Sequence[np.ndarray]
+) -> list[Evaluation]:
+    """Evaluate walker positions under several models with one simulator call.
+
+    The volume fractions of a fit, the candidate laws of a screening or the refits of a
+    cross-validation are independent models; their simulations (every walker inside its
+    model's prior, every configuration) are concatenated into one batch for the compiled
+    simulator, which then runs in parallel over all of them. The simulator works jump by
+    jump, so each model's values are those of evaluating it alone.
+
+    Parameters
+    ----------
+    models : sequence of JumpModel
+        The models; they must share the integrator settings and thread count.
+    positions : sequence of ndarray
+        Walker positions per model, shape ``(n_i, ndim_i)`` (``n_i`` may be 0).
+
+    Returns
+    -------
+    list of Evaluation
+        One per model, in order.
+    """
+    if not models:
+        return []
+    options, n_threads = models[0].options, models[0].n_threads
+    if any(m.options != options or m.n_threads != n_threads for m in models):
+        raise ValueError("models evaluated together must share solver settings and threads")
+    prepared = []
+    rows, index, programs = [], [], []
+    for model, u in zip(models, positions, strict=True):
+        u = np.atleast_2d(np.asarray(u, dtype=float)).reshape(-1, model.ndim)
+        lp = model.log_prior(u) if len(u) else np.empty(0)
+        good = np.isfinite(lp)
+        if np.any(good):
+            r, i = model.simulation_rows(u[good])
+            rows.append(r)
+            index.append(i + len(programs))
+            programs.extend(model.obs.programs)
+        prepared.append((model, u, lp, good))
+    heights = ok = None
+    if rows:
+        res = simulate_rows(
+            np.concatenate(rows),
+            programs,
+            np.concatenate(index),
+            options=options,
+            n_threads=n_threads,
+        )
+        heights, ok = res.height_mm, res.ok
+    out = []
+    start = 0
+    for model, u, lp, good in prepared:
+        n, m = len(u), len(model.obs.configs)
+        sim = np.full((n, m), np.nan)
+        loglik = np.full((n, model.obs.n_obs), -np.inf)
+        n_good = int(np.sum(good))
+        if n_good:
+            stop = start + n_good * m
+            h = heights[start:stop].reshape(n_good, m)
+            fine = np.all(ok[start:stop].reshape(n_good, m), axis=1)
+            start = stop
+            ll = model.log_likelihood(u[good], h)
+            ll[~fine] = -np.inf
+            loglik[good] = ll
+            sim[good] = h
+            total = ll.sum(axis=1)
+            total[~np.isfinite(total)] = -np.inf
+            lp = lp.copy()
+            lp[good] = lp[good] + total
+        out.append(Evaluation(lp, loglik, sim))
+    return out

@@ -2,7 +2,7 @@
 
 :func:`run_ensembles` takes a vectorised function ``f(positions) -> (log_prob, blobs)``
 (arrays of shape ``(n,)`` and ``(n, m)``), one array of starting positions per ensemble and
-a seed. The ensembles are advanced side by side in chunks of ``check_every`` steps. After
+a seed. The ensembles are advanced together in chunks of ``check_every`` steps. After
 each chunk the run is *converged* when all three hold:
 
 1. **autocorrelation**: in every ensemble the chain after burn-in is at least
@@ -41,6 +41,16 @@ positions, the stuck walkers moved onto jittered copies of its other walkers (th
 as a restart), and a warning says so. A walker that visits the main mode at all in the
 window is never flagged, so runs without stuck walkers are unchanged.
 
+**Side by side.** :func:`run_side_by_side` samples several independent runs at once (the
+volume fractions of a fit, the held-out refits of a cross-validation): each follows the
+rule above on its own, and every round the requests of all ensembles of all runs still
+going are evaluated in one call (one simulator call instead of one per run and ensemble).
+The steps are emcee's own (its moves, their proposals and its acceptance rule, with each
+ensemble's own ``RandomState``), driven by one generator per ensemble instead of
+``EnsembleSampler.run_mcmc`` in a thread per ensemble: the chains are those of
+``emcee.EnsembleSampler`` with the same random state (tested), and no thread hand-off
+costs time at every half-step. :func:`run_ensembles` is one such run.
+
 With a checkpoint folder every ensemble is saved after every chunk (chain, blobs,
 acceptance counts, emcee's random state and the step at which its chain began, written to
 a temporary file and moved into place, so a checkpoint is always whole). All decisions
@@ -52,8 +62,7 @@ cost a third of the sampling time here.)
 from __future__ import annotations
 
 import os
-import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -67,10 +76,12 @@ __all__ = [
     "Checkpoint",
     "CheckpointMismatchError",
     "ProgressInfo",
+    "RunSpec",
     "SamplerRun",
     "SamplerSettings",
     "load_checkpoint",
     "run_ensembles",
+    "run_side_by_side",
     "save_checkpoint",
 ]
 
@@ -237,126 +248,163 @@ def _moves(kind: Literal["de", "stretch"]) -> list:
     raise ValueError(f"moves must be 'de' or 'stretch', got {kind!r}")
 
 
-def _adapt(fn: LogProbFn, m: int) -> Callable[[np.ndarray], list]:
-    """Emcee's vectorised-with-blobs protocol: a list of per-walker (lp, blob) tuples."""
+def _clean(lp: np.ndarray, blobs: np.ndarray, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Log-probabilities and blobs of ``n`` positions as float arrays ``(n,)``, ``(n, m)``.
 
-    def wrapped(x: np.ndarray) -> list:
-        lp, blobs = fn(x)
-        lp = np.asarray(lp, dtype=float)
-        blobs = np.asarray(blobs, dtype=float).reshape(len(lp), m)
-        bad = ~np.isfinite(lp)
-        lp = np.where(bad, -np.inf, lp)
-        blobs[bad] = -np.inf
-        return [(lp[i], blobs[i]) for i in range(len(lp))]
+    A non-finite log-probability (NaN too) becomes ``-inf`` (the position is never
+    accepted) and its blob ``-inf``.
+    """
+    lp = np.array(lp, dtype=float).reshape(n)
+    blobs = np.array(blobs, dtype=float).reshape(n, m)
+    bad = ~np.isfinite(lp)
+    lp[bad] = -np.inf
+    blobs[bad] = -np.inf
+    return lp, blobs
 
-    return wrapped
 
+@dataclass
+class _Ensemble:
+    """One emcee ensemble: its chain (an emcee backend), random state and current walkers.
 
-class _Lockstep:
-    """One call of the log-probability function for the requests of all ensembles.
-
-    emcee asks for the log-probability of half (or, with the snooker move, a quarter of)
-    an ensemble at a time: a handful of walkers, each call paying the same fixed cost
-    (Python, the simulator's dispatch over its threads). The ensembles of a run are
-    therefore stepped side by side, each in a thread of its own, and their requests are
-    collected until every still-running ensemble has made one; the calling thread then
-    evaluates them all in one call, in ensemble order, and hands each its rows. All
-    evaluations happen in the calling thread, one at a time, so the simulator's thread
-    pool (OpenMP, TBB or numba's workqueue, and numba's per-thread thread count) sees
-    the same single caller as without batching. The function works row by row, so the
-    values (and the chains) are those of stepping the ensembles one after another.
+    ``offset`` is the global step at which its current chain began (non-zero after a
+    restart); ``log_prob`` is ``None`` until the starting positions ``coords`` have been
+    evaluated.
     """
 
-    def __init__(self, fn: Callable[[np.ndarray], list]) -> None:
-        self._fn = fn
-        self._cond = threading.Condition()
-        self._active: set[int] = set()
-        self._pending: dict[int, np.ndarray] = {}
-        self._results: dict[int, list] = {}
-        self._error: BaseException | None = None
+    backend: emcee.backends.Backend
+    random: np.random.RandomState
+    offset: int
+    coords: np.ndarray
+    log_prob: np.ndarray | None = None
+    blobs: np.ndarray | None = None
 
-    def port(self, index: int) -> Callable[[np.ndarray], list]:
-        """The log-probability function ensemble ``index`` is given."""
+    @property
+    def iteration(self) -> int:
+        """Steps stored in its chain."""
+        return int(self.backend.iteration)
 
-        def request(x: np.ndarray) -> list:
-            if not self._active:  # not stepped side by side: evaluate directly
-                return self._fn(x)
-            with self._cond:
-                self._pending[index] = np.asarray(x, dtype=float)
-                self._cond.notify_all()
-                while index not in self._results and self._error is None:
-                    self._cond.wait()
-                if index not in self._results:
-                    raise _Aborted
-                return self._results.pop(index)
+    def keep_random_state(self) -> None:
+        """Store the current random state in the backend (read by checkpoints)."""
+        self.backend.random_state = self.random.get_state()
 
-        return request
 
-    def run(self, jobs: Sequence[Callable[[], None]]) -> None:
-        """Run ``jobs[i]`` (which steps ensemble ``i``) side by side until all return."""
-        failures: list[BaseException] = []
+def _new_ensemble(start: np.ndarray, random_seed: int, offset: int) -> _Ensemble:
+    """An ensemble about to start a fresh chain at global step ``offset`` from ``start``."""
+    start = np.array(start, dtype=float)
+    if not emcee.ensemble.walkers_independent(start):
+        raise ValueError(
+            "Initial state has a large condition number. Make sure that your walkers are "
+            "linearly independent for the best performance"
+        )
+    backend = emcee.backends.Backend()
+    backend.reset(*start.shape)
+    random = np.random.RandomState(random_seed)
+    return _Ensemble(backend, random, offset, start)
 
-        def worker(i: int) -> None:
-            try:
-                jobs[i]()
-            except _Aborted:
-                pass
-            except BaseException as exc:
-                failures.append(exc)
-            finally:
-                with self._cond:
-                    self._active.discard(i)
-                    if failures and self._error is None:
-                        self._error = failures[0]
-                    self._cond.notify_all()
 
-        with self._cond:
-            self._active = set(range(len(jobs)))
-            self._error = None
-        threads = [
-            threading.Thread(target=worker, args=(i,), daemon=True) for i in range(len(jobs))
-        ]
-        for t in threads:
-            t.start()
+def _resumed_ensemble(backend: emcee.backends.Backend, offset: int) -> _Ensemble:
+    """An ensemble continuing the chain stored in ``backend``."""
+    random = np.random.RandomState()
+    random.set_state(backend.random_state)
+    last = backend.get_last_sample()
+    blobs = None if last.blobs is None else np.asarray(last.blobs, dtype=float)
+    return _Ensemble(backend, random, offset, np.array(last.coords), last.log_prob.copy(), blobs)
+
+
+def _advance(e: _Ensemble, n: int, moves: Sequence, weights: np.ndarray, m: int):
+    """Generator that advances ensemble ``e`` by ``n`` steps of emcee's moves.
+
+    It yields the positions whose log-probability it needs and receives ``(log_prob,
+    blobs)`` for them: the driver (:func:`_run_chunk`) evaluates the requests of every
+    ensemble of every run in one call. The steps are emcee's own
+    (``EnsembleSampler.sample`` and ``RedBlueMove.propose``): the move is chosen, the
+    ensemble split and the proposals made with emcee's move objects and the ensemble's own
+    ``RandomState``, in the same order, so the chain is the one ``emcee.EnsembleSampler``
+    makes with the same random state (tested), without a thread per ensemble.
+    """
+    if e.log_prob is None:  # a fresh chain: evaluate the starting positions
+        lp, blobs = yield e.coords
+        e.log_prob, e.blobs = _clean(lp, blobs, len(e.coords), m)
+    e.backend.grow(n, e.blobs)
+    n_walkers = len(e.coords)
+    for _ in range(n):
+        move = moves[e.random.choice(len(moves), p=weights)]
+        move.setup(e.coords)
+        accepted = np.zeros(n_walkers, dtype=bool)
+        inds = np.arange(n_walkers) % move.nsplits
+        if move.randomize_split:
+            e.random.shuffle(inds)
+        for split in range(move.nsplits):
+            subset = inds == split
+            sets = [e.coords[inds == j] for j in range(move.nsplits)]
+            q, factors = move.get_proposal(sets[split], sets[:split] + sets[split + 1 :], e.random)
+            lp, blobs = yield q
+            lp, blobs = _clean(lp, blobs, len(q), m)
+            # emcee draws one uniform per walker of the half, in walker order; from a walker
+            # at -inf, a proposal at -inf gives NaN, which is not accepted (as in emcee)
+            with np.errstate(invalid="ignore"):
+                take = factors + lp - e.log_prob[subset] > np.log(e.random.rand(len(q)))
+            rows = np.flatnonzero(subset)[take]
+            accepted[rows] = True
+            e.coords[rows] = q[take]
+            e.log_prob[rows] = lp[take]
+            e.blobs[rows] = blobs[take]
+        e.backend.save_step(emcee.State(e.coords, log_prob=e.log_prob, blobs=e.blobs), accepted)
+
+
+#: The batched log-probability of several runs: positions per run (only the runs with
+#: requests) to ``(log_prob, blobs)`` per run, arrays of shape ``(n,)`` and ``(n, m)``.
+EvaluateFn = Callable[[dict[int, np.ndarray]], dict[int, tuple[np.ndarray, np.ndarray]]]
+
+
+def _run_chunk(
+    evaluate: EvaluateFn,
+    jobs: Sequence[tuple[int, _Ensemble, int]],
+    moves: Mapping[int, tuple[Sequence, np.ndarray]],
+    n_blobs: Sequence[int],
+) -> None:
+    """Advance ensembles side by side: ``jobs`` are ``(run, ensemble, steps)``.
+
+    ``moves[run]`` are the run's emcee moves and their weights, ``n_blobs[run]`` the length
+    of its blobs.
+
+    Every ensemble still stepping has one request pending at any time; they are gathered
+    per run (in job order), evaluated in one call of ``evaluate`` and handed back.
+    ``evaluate`` works row by row, so the values, and the chains, do not depend on how the
+    requests are batched.
+    """
+    gens = [_advance(e, n, *moves[run], n_blobs[run]) for run, e, n in jobs]
+    pending: dict[int, np.ndarray] = {}
+    for i, g in enumerate(gens):
         try:
-            self._serve()
-        finally:
-            with self._cond:
-                if self._active and self._error is None:
-                    self._error = _Aborted()
-                self._cond.notify_all()
-            for t in threads:
-                t.join()
-            with self._cond:
-                self._active = set()
-        if failures:
-            raise failures[0]
-
-    def _serve(self) -> None:
-        """Evaluate each complete batch of requests in the calling thread until done."""
-        while True:
-            with self._cond:
-                while (
-                    self._active
-                    and self._error is None
-                    and (len(self._pending) < len(self._active))
-                ):
-                    self._cond.wait()
-                if not self._active or self._error is not None:
-                    return
-                order = sorted(self._pending)
-                xs = [self._pending.pop(i) for i in order]
-            out = self._fn(np.concatenate(xs))  # outside the lock; may raise
-            with self._cond:
-                start = 0
-                for i, x in zip(order, xs, strict=True):
-                    self._results[i] = out[start : start + len(x)]
-                    start += len(x)
-                self._cond.notify_all()
-
-
-class _Aborted(Exception):
-    """Raised in an ensemble's thread when the run stops because of another failure."""
+            pending[i] = next(g)
+        except StopIteration:
+            pass
+    while pending:
+        order = sorted(pending)
+        per_run: dict[int, list[int]] = {}
+        for i in order:
+            per_run.setdefault(jobs[i][0], []).append(i)
+        results = evaluate(
+            {run: np.concatenate([pending[i] for i in idx]) for run, idx in per_run.items()}
+        )
+        answers: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        for run, idx in per_run.items():
+            lp, blobs = results[run]
+            lp = np.asarray(lp, dtype=float).reshape(-1)
+            blobs = np.asarray(blobs, dtype=float).reshape(len(lp), n_blobs[run])
+            start = 0
+            for i in idx:
+                stop = start + len(pending[i])
+                answers[i] = (lp[start:stop], blobs[start:stop])
+                start = stop
+        nxt: dict[int, np.ndarray] = {}
+        for i in order:
+            try:
+                nxt[i] = gens[i].send(answers[i])
+            except StopIteration:
+                pass
+        pending = nxt
 
 
 def _tau(chain: np.ndarray) -> np.ndarray:
@@ -481,15 +529,6 @@ def load_checkpoint(path: Path) -> Checkpoint | None:
 
 
 # ----------------------------------------------------------------------------------------
-@dataclass
-class _Ensemble:
-    """One emcee ensemble and the global step at which its current chain began."""
-
-    sampler: emcee.EnsembleSampler
-    offset: int
-    start: np.ndarray | None  # positions for the next run_mcmc (None: continue)
-
-
 @dataclass(frozen=True)
 class _Check:
     """The stopping rule evaluated on the stored chains at one global step."""
@@ -539,7 +578,7 @@ def _chains(ens: Sequence[_Ensemble], done: int) -> list[tuple[np.ndarray, np.nd
     out = []
     for e in ens:
         n = done - e.offset
-        out.append((e.sampler.get_chain()[:n], e.sampler.get_log_prob()[:n]))
+        out.append((e.backend.get_chain()[:n], e.backend.get_log_prob()[:n]))
     return out
 
 
@@ -603,21 +642,193 @@ def _stuck_walkers(check: _Check, s: SamplerSettings) -> dict[int, np.ndarray]:
     return out
 
 
-def _make_sampler(
-    fn: Callable, n_walkers: int, ndim: int, s: SamplerSettings, backend=None
-) -> emcee.EnsembleSampler:
-    return emcee.EnsembleSampler(
-        n_walkers,
-        ndim,
-        fn,
-        vectorize=True,
-        moves=_moves(s.moves),
-        backend=backend if backend is not None else emcee.backends.Backend(),
+def _spawn(seed: int, n: int) -> list[int]:
+    return [int(q.generate_state(1)[0]) for q in np.random.SeedSequence(seed).spawn(n)]
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One posterior to sample with independent ensembles (a *run*).
+
+    Parameters
+    ----------
+    initial : sequence of ndarray, each of shape (n_walkers, ndim)
+        Starting positions, one array per ensemble (ignored when resuming).
+    n_blobs : int
+        Length of each walker's blob (e.g. the pointwise log-likelihood).
+    seed : int
+        Master seed: every ensemble's random state (and every restart's) is spawned from it.
+    checkpoint : str or Path, optional
+        HDF5 checkpoint file of this run (all ensembles), written after every chunk.
+    resume : bool
+        Continue the run stored in ``checkpoint`` (else it is started afresh).
+    fingerprint : str
+        Identity of the problem (data, model, settings); stored in the checkpoints, and a
+        resume from checkpoints with another fingerprint is refused.
+    progress : callable, optional
+        Called with a :class:`ProgressInfo` after every chunk.
+    """
+
+    initial: Sequence[np.ndarray]
+    n_blobs: int
+    seed: int
+    checkpoint: str | Path | None = None
+    resume: bool = False
+    fingerprint: str = ""
+    progress: Callable[[ProgressInfo], None] | None = None
+
+
+@dataclass
+class _Run:
+    """The state of one run while it is sampled (:func:`run_side_by_side`)."""
+
+    spec: RunSpec
+    ens: list[_Ensemble]
+    moves: list
+    weights: np.ndarray
+    path: Path | None
+    notes: list[str]
+    done: int
+    restarts: int
+    check: _Check | None = None
+    finished: bool = False
+
+
+def _start_run(spec: RunSpec, s: SamplerSettings) -> _Run:
+    """The ensembles of a run: fresh from ``spec.initial`` or resumed from its checkpoint."""
+    initial = [np.asarray(x, dtype=float) for x in spec.initial]
+    n_walkers, ndim = initial[0].shape
+    if any(x.shape != (n_walkers, ndim) for x in initial):
+        raise ValueError("every ensemble needs initial positions of the same shape")
+    if n_walkers < 2 * ndim or n_walkers % 2:
+        raise ValueError(f"{n_walkers} walkers: need an even number >= 2 x {ndim} dimensions")
+    path = Path(spec.checkpoint) if spec.checkpoint is not None else None
+    stored = load_checkpoint(path) if spec.resume and path is not None else None
+    notes: list[str] = []
+    if stored is not None:
+        if stored.fingerprint != spec.fingerprint:
+            raise CheckpointMismatchError(
+                f"checkpoint {path} was made for other data or settings; start afresh "
+                "instead of resuming"
+            )
+        shapes = {b.shape for b, _ in stored.backends}
+        if shapes != {(n_walkers, ndim)} or len(stored.backends) != len(initial):
+            raise CheckpointMismatchError(
+                f"checkpoint {path} holds {len(stored.backends)} ensemble(s) of shape "
+                f"{sorted(shapes)}, not {len(initial)} of {(n_walkers, ndim)}"
+            )
+        ens = [_resumed_ensemble(backend, offset) for backend, offset in stored.backends]
+        notes = list(stored.notes)
+    else:
+        seeds = _spawn(spec.seed, len(initial))
+        ens = [_new_ensemble(x, sub, 0) for x, sub in zip(initial, seeds, strict=True)]
+    # emcee's moves, one set per run (a move keeps per-dimension settings), and their
+    # weights normalised as emcee.EnsembleSampler does
+    pairs = _moves(s.moves)
+    weights = np.atleast_1d([w for _, w in pairs]).astype(float)
+    # the global step: every ensemble's chain ends there (offset + its own length)
+    done = max(e.offset + e.iteration for e in ens)
+    return _Run(
+        spec, ens, [m for m, _ in pairs], weights / np.sum(weights), path, notes, done, len(notes)
     )
 
 
-def _spawn(seed: int, n: int) -> list[int]:
-    return [int(q.generate_state(1)[0]) for q in np.random.SeedSequence(seed).spawn(n)]
+def _at_check(run: _Run, s: SamplerSettings) -> None:
+    """Apply the stopping rule to a run at a check point; restart stuck ensembles/walkers."""
+    done, seed = run.done, run.spec.seed
+    check = run.check = _check(run.ens, done, s)
+    converged = check.converged(s)
+    if run.spec.progress is not None:
+        run.spec.progress(_progress(check, done, s, converged))
+    if converged or done >= s.max_steps:
+        run.finished = True
+        return
+    stuck = _stuck(check, s) if run.restarts < s.max_restarts else []
+    if stuck:
+        run.restarts += 1
+        best = int(np.argmax(check.lp_median))
+        run.notes.append(_restart_note(stuck, best, check, done))
+        for i in stuck:
+            run.ens[i] = _restart(run.ens[best], seed, done, i, run.restarts)
+    walkers = _stuck_walkers(check, s) if run.restarts < s.max_restarts and not stuck else {}
+    if walkers:
+        run.restarts += 1
+        run.notes.append(_walker_note(walkers, check, done))
+        for i, idx in walkers.items():
+            run.ens[i] = _move_walkers(run.ens[i], idx, seed, done, i, run.restarts, check)
+
+
+def run_side_by_side(
+    evaluate: EvaluateFn,
+    runs: Sequence[RunSpec],
+    settings: SamplerSettings | None = None,
+) -> list[SamplerRun]:
+    """Sample several independent runs side by side, each until its ensembles agree.
+
+    Every run follows the stopping rule of the module docstring on its own and stops when
+    it is met (or at ``max_steps``); the runs still going are stepped together, and the
+    requests of all their ensembles are evaluated in one call of ``evaluate`` per round
+    (for a simulator, one batched call instead of one per run and ensemble). The chains are
+    those of sampling each run alone: ``evaluate`` must work row by row.
+
+    Parameters
+    ----------
+    evaluate : callable
+        ``evaluate({run: positions}) -> {run: (log_prob, blobs)}``: positions of shape
+        ``(n, ndim_run)`` for every run that has requests (keys index ``runs``), returning
+        arrays of shape ``(n,)`` and ``(n, n_blobs_run)``.
+    runs : sequence of RunSpec
+        The runs.
+    settings : SamplerSettings, optional
+        Stopping rule and moves, shared by the runs (``n_ensembles`` is taken from each
+        run's ``initial``).
+
+    Returns
+    -------
+    list of SamplerRun
+        In the order of ``runs``.
+
+    Raises
+    ------
+    CheckpointMismatchError
+        When resuming from a checkpoint written for another problem.
+    """
+    s = settings or SamplerSettings()
+    state = [_start_run(spec, s) for spec in runs]
+    n_blobs = [spec.n_blobs for spec in runs]
+    c = s.check_every
+    while True:
+        for run in state:
+            if not run.finished and (
+                run.done >= s.max_steps or (run.done > 0 and run.done % c == 0)
+            ):
+                _at_check(run, s)
+        active = [i for i, run in enumerate(state) if not run.finished]
+        if not active:
+            break
+        n = min(min(c - state[i].done % c, s.max_steps - state[i].done) for i in active)
+        jobs = [(i, e, n) for i in active for e in state[i].ens]
+        moves = {i: (state[i].moves, state[i].weights) for i in active}
+        _run_chunk(evaluate, jobs, moves, n_blobs)
+        for i in active:
+            run = state[i]
+            run.done += n
+            if run.path is not None:
+                for e in run.ens:
+                    e.keep_random_state()
+                save_checkpoint(
+                    run.path,
+                    [(e.backend, e.offset) for e in run.ens],
+                    run.spec.fingerprint,
+                    run.notes,
+                )
+    out = []
+    for run in state:
+        assert run.check is not None
+        out.append(
+            _pool(run.ens, run.check, run.done, s, run.spec.seed, run.notes, run.spec.n_blobs)
+        )
+    return out
 
 
 def run_ensembles(
@@ -633,6 +844,8 @@ def run_ensembles(
     progress: Callable[[ProgressInfo], None] | None = None,
 ) -> SamplerRun:
     """Sample with independent ensembles until they agree (module docstring), or capped.
+
+    One run of :func:`run_side_by_side`.
 
     Parameters
     ----------
@@ -666,82 +879,8 @@ def run_ensembles(
     CheckpointMismatchError
         When resuming from checkpoints written for another problem.
     """
-    s = settings or SamplerSettings()
-    initial = [np.asarray(x, dtype=float) for x in initial]
-    n_walkers, ndim = initial[0].shape
-    if any(x.shape != (n_walkers, ndim) for x in initial):
-        raise ValueError("every ensemble needs initial positions of the same shape")
-    if n_walkers < 2 * ndim or n_walkers % 2:
-        raise ValueError(f"{n_walkers} walkers: need an even number >= 2 x {ndim} dimensions")
-    fn = _adapt(log_prob_fn, n_blobs)
-    lockstep = _Lockstep(fn)
-    path = Path(checkpoint) if checkpoint is not None else None
-    stored = load_checkpoint(path) if resume and path is not None else None
-    notes: list[str] = []
-    ens: list[_Ensemble] = []
-    if stored is not None:
-        if stored.fingerprint != fingerprint:
-            raise CheckpointMismatchError(
-                f"checkpoint {path} was made for other data or settings; start afresh "
-                "instead of resuming"
-            )
-        shapes = {b.shape for b, _ in stored.backends}
-        if shapes != {(n_walkers, ndim)} or len(stored.backends) != len(initial):
-            raise CheckpointMismatchError(
-                f"checkpoint {path} holds {len(stored.backends)} ensemble(s) of shape "
-                f"{sorted(shapes)}, not {len(initial)} of {(n_walkers, ndim)}"
-            )
-        for i, (backend, offset) in enumerate(stored.backends):
-            sampler = _make_sampler(lockstep.port(i), n_walkers, ndim, s, backend)
-            ens.append(_Ensemble(sampler, offset, None))
-        notes = list(stored.notes)
-    else:
-        for i, (x, sub_seed) in enumerate(zip(initial, _spawn(seed, len(initial)), strict=True)):
-            sampler = _make_sampler(lockstep.port(i), n_walkers, ndim, s)
-            sampler.random_state = np.random.RandomState(sub_seed).get_state()
-            ens.append(_Ensemble(sampler, 0, x))
-    # the global step: every ensemble's chain ends there (offset + its own length)
-    done = max(e.offset + e.sampler.iteration for e in ens)
-    restarts = len(notes)
-    c = s.check_every
-    check: _Check | None = None
-    while True:
-        if done >= s.max_steps or (done > 0 and done % c == 0):
-            check = _check(ens, done, s)
-            converged = check.converged(s)
-            if progress is not None:
-                progress(_progress(check, done, s, converged))
-            if converged or done >= s.max_steps:
-                break
-            stuck = _stuck(check, s) if restarts < s.max_restarts else []
-            if stuck:
-                restarts += 1
-                best = int(np.argmax(check.lp_median))
-                notes.append(_restart_note(stuck, best, check, done))
-                for i in stuck:
-                    port = lockstep.port(i)
-                    ens[i] = _restart(ens[best], port, s, seed, done, i, restarts)
-            walkers = _stuck_walkers(check, s) if restarts < s.max_restarts and not stuck else {}
-            if walkers:
-                restarts += 1
-                notes.append(_walker_note(walkers, check, done))
-                for i, idx in walkers.items():
-                    port = lockstep.port(i)
-                    ens[i] = _move_walkers(ens[i], idx, port, s, seed, done, i, restarts, check)
-        n = min(c - done % c, s.max_steps - done)
-        lockstep.run([_advance(e, n) for e in ens])
-        for e in ens:
-            e.start = None
-        done += n
-        if path is not None:
-            save_checkpoint(path, [(e.sampler.backend, e.offset) for e in ens], fingerprint, notes)
-    assert check is not None
-    return _pool(ens, check, done, s, seed, notes, n_blobs)
-
-
-def _advance(e: _Ensemble, n: int) -> Callable[[], None]:
-    """Advance ensemble ``e`` by ``n`` steps (from its start, or where it stopped)."""
-    return lambda: e.sampler.run_mcmc(e.start, n, progress=False, store=True)
+    spec = RunSpec(initial, n_blobs, seed, checkpoint, resume, fingerprint, progress)
+    return run_side_by_side(lambda xs: {0: log_prob_fn(xs[0])}, [spec], settings)[0]
 
 
 def _progress(check: _Check, done: int, s: SamplerSettings, converged: bool) -> ProgressInfo:
@@ -779,8 +918,6 @@ def _walker_note(walkers: dict[int, np.ndarray], check: _Check, done: int) -> st
 def _move_walkers(
     e: _Ensemble,
     stuck: np.ndarray,
-    fn: Callable,
-    s: SamplerSettings,
     seed: int,
     done: int,
     index: int,
@@ -794,7 +931,7 @@ def _move_walkers(
     (seed, step, ensemble, restart number), so a resumed run repeats it.
     """
     rng = np.random.default_rng([seed, done, index, restart, 1])
-    chain = e.sampler.get_chain()[: done - e.offset]
+    chain = e.backend.get_chain()[: done - e.offset]
     n_walkers, ndim = chain.shape[1:]
     good = np.setdiff1d(np.arange(n_walkers), stuck)
     start = chain[-1].copy()
@@ -802,40 +939,28 @@ def _move_walkers(
     scale = np.std(post, axis=0)
     donors = rng.choice(good, size=stuck.size)
     start[stuck] = start[donors] + 1e-2 * scale * rng.standard_normal((stuck.size, ndim))
-    return _fresh_chain(fn, start, s, rng, done)
+    return _fresh_chain(start, rng, done)
 
 
-def _restart(
-    best: _Ensemble,
-    fn: Callable,
-    s: SamplerSettings,
-    seed: int,
-    done: int,
-    index: int,
-    restart: int,
-) -> _Ensemble:
+def _restart(best: _Ensemble, seed: int, done: int, index: int, restart: int) -> _Ensemble:
     """A fresh chain for a stuck ensemble, started from the best ensemble's walkers.
 
     Deterministic in (seed, step, ensemble, restart number), so a resumed run repeats it.
     """
     rng = np.random.default_rng([seed, done, index, restart])
-    chain = best.sampler.get_chain()
+    chain = best.backend.get_chain()
     last = chain[-1]
     scale = np.std(chain[len(chain) // 2 :].reshape(-1, last.shape[-1]), axis=0)
     start = last + 1e-2 * scale * rng.standard_normal(last.shape)
-    return _fresh_chain(fn, start, s, rng, done)
+    return _fresh_chain(start, rng, done)
 
 
-def _fresh_chain(
-    fn: Callable, start: np.ndarray, s: SamplerSettings, rng: np.random.Generator, done: int
-) -> _Ensemble:
+def _fresh_chain(start: np.ndarray, rng: np.random.Generator, done: int) -> _Ensemble:
     """A new ensemble from positions ``start``, its chain beginning at global step ``done``.
 
-    Its emcee random state is drawn from ``rng``.
+    Its random state is drawn from ``rng``.
     """
-    sampler = _make_sampler(fn, *start.shape, s)
-    sampler.random_state = np.random.RandomState(rng.integers(2**32)).get_state()
-    return _Ensemble(sampler, done, start)
+    return _new_ensemble(start, int(rng.integers(2**32)), done)
 
 
 def _pool(
@@ -878,11 +1003,11 @@ def _pool(
         e = ens[i]
         n = done - e.offset
         sel = slice(n - thin * n_draw, n, thin)
-        samples.append(np.swapaxes(e.sampler.get_chain()[sel], 0, 1))
-        log_prob.append(e.sampler.get_log_prob()[sel].T)
-        b = np.asarray(e.sampler.get_blobs()[sel], dtype=float)
+        samples.append(np.swapaxes(e.backend.get_chain()[sel], 0, 1))
+        log_prob.append(e.backend.get_log_prob()[sel].T)
+        b = np.asarray(e.backend.get_blobs()[sel], dtype=float)
         blobs.append(np.swapaxes(b.reshape(n_draw, -1, n_blobs), 0, 1))
-        acc.append(np.asarray(e.sampler.acceptance_fraction, dtype=float))
+        acc.append(np.asarray(e.backend.accepted / float(e.iteration), dtype=float))
         which.append(np.full(samples[-1].shape[0], i))
     ndim = samples[0].shape[-1]
     nan = np.full(ndim, np.nan)

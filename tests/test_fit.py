@@ -168,29 +168,27 @@ def stored_steps(path: Path) -> list[int]:
 def interrupt_sampling_after(monkeypatch: pytest.MonkeyPatch, n_calls: int, run: int = 0) -> None:
     """Make the fit's log-probability raise KeyboardInterrupt: a simulated Ctrl-C mid-run.
 
-    Wraps the function handed to ``run_ensembles`` and raises at its ``n_calls``-th call
-    (counted over all ensembles of the run) in the ``run``-th sampler run of the fit (0:
-    the first volume fraction); ``find_starts`` is not counted.
+    Wraps the batched function handed to ``run_side_by_side`` and raises at its
+    ``n_calls``-th call that evaluates the ``run``-th sampler run of the fit (0: the first
+    volume fraction; the runs of a fit are sampled side by side, so the other runs have
+    progressed as far); the starts are not counted.
     """
-    original = gfit.run_ensembles
-    runs = 0
+    original = gfit.run_side_by_side
 
-    def wrapper(log_prob_fn, *args, **kwargs):
-        nonlocal runs
-        this_run = runs
-        runs += 1
+    def wrapper(evaluate, *args, **kwargs):
         calls = 0
 
-        def counted(x):
+        def counted(xs):
             nonlocal calls
-            calls += 1
-            if this_run == run and calls >= n_calls:
-                raise KeyboardInterrupt
-            return log_prob_fn(x)
+            if run in xs:
+                calls += 1
+                if calls >= n_calls:
+                    raise KeyboardInterrupt
+            return evaluate(xs)
 
         return original(counted, *args, **kwargs)
 
-    monkeypatch.setattr(gfit, "run_ensembles", wrapper)
+    monkeypatch.setattr(gfit, "run_side_by_side", wrapper)
 
 
 def sampling_coordinates(
@@ -521,13 +519,13 @@ def test_warm_start_from_a_nested_parent(
     """
     experiment, table = load_folder(one_phi)
     starts: list[list[np.ndarray]] = []
-    original = gfit.run_ensembles
+    original = gfit.run_side_by_side
 
-    def spy(log_prob_fn, initial, *args, **kwargs):
-        starts.append([np.array(x) for x in initial])
-        return original(log_prob_fn, initial, *args, **kwargs)
+    def spy(evaluate, runs, *args, **kwargs):
+        starts.extend([np.array(x) for x in r.initial] for r in runs)
+        return original(evaluate, runs, *args, **kwargs)
 
-    monkeypatch.setattr(gfit, "run_ensembles", spy)
+    monkeypatch.setattr(gfit, "run_side_by_side", spy)
     config = FitSettings(terms=("depth", "drag"), sampler=WARM, n_threads=1, n_prior_draws=0)
     child = fit(experiment, table, config, seed=5, warm_start=recovery_fit.datatree)
     (initial,) = starts
@@ -585,10 +583,11 @@ def test_progress_is_reported_per_run(tiny_fits) -> None:
     """``progress(label, info)`` is called after every chunk of every run, with the run's
     label and a ProgressInfo whose last value agrees with the run's diagnostics."""
     a, _, calls = tiny_fits
+    # the runs are sampled side by side: their reports interleave, chunk by chunk
     assert [(label, info.step) for label, info in calls] == [
         ("phi=0.602", 50),
-        ("phi=0.602", 100),
         ("phi=0.622", 50),
+        ("phi=0.602", 100),
         ("phi=0.622", 100),
     ]
     assert all(info.max_steps == TINY.max_steps for _, info in calls)
@@ -607,15 +606,14 @@ def test_progress_is_reported_per_run(tiny_fits) -> None:
 def test_library_resume_across_volume_fractions(
     tiny_fits, two_phis: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A fit interrupted in its second volume fraction resumes to the same posterior.
+    """A fit interrupted mid-way resumes to the same posterior, bit for bit.
 
-    The run of the first volume fraction is complete in its checkpoint and must be
-    reused; the second is interrupted at its 200th log-probability call, after its first
-    checkpoint (50 steps), and continues. The ensembles are evaluated together (one call
-    per step and split of the ensemble: 2 for the DE move, 4 for the snooker move, which
-    20% of the steps of each ensemble use), so a chunk of 50 steps costs about
-    1 + 2.7 x 50 calls. The result equals the uninterrupted fit
-    bit for bit, in every group.
+    The volume fractions are sampled side by side; the fit is interrupted at the 200th
+    batched log-probability call of its second run, after the first checkpoint of both
+    runs (50 steps). The ensembles are evaluated together (one call per round: every
+    ensemble has one request, a half of it for the DE move, a quarter for the snooker move
+    that 20% of the steps use), so a chunk of 50 steps costs about 1 + 2.7 x 50 calls. The
+    resumed result equals the uninterrupted fit bit for bit, in every group.
     """
     experiment, table = load_folder(two_phis)
     config = FitSettings(terms=("depth",), sampler=TINY, n_threads=1)
@@ -624,7 +622,7 @@ def test_library_resume_across_volume_fractions(
         interrupt_sampling_after(m, 200, run=1)
         with pytest.raises(KeyboardInterrupt):
             fit(experiment, table, config, seed=11, backend=backend)
-    assert stored_steps(backend / "phi=0.602.h5") == [TINY.max_steps] * TINY.n_ensembles
+    assert stored_steps(backend / "phi=0.602.h5") == [TINY.check_every] * TINY.n_ensembles
     assert stored_steps(backend / "phi=0.622.h5") == [TINY.check_every] * TINY.n_ensembles
     resumed = fit(experiment, table, config, seed=11, backend=backend, resume=True)
     assert_same_groups(resumed.datatree, tiny_fits[0].datatree)
@@ -886,16 +884,16 @@ BAD_INPUTS = {
 def test_cli_bad_input(case: str, one_phi: Path, tmp_path: Path, monkeypatch, capsys) -> None:
     """Bad input exits 2 with one line naming file/row/column, before any sampling.
 
-    run_ensembles and find_starts (and so the fit itself) are replaced by functions that
+    run_side_by_side and the starts (and so the fit itself) are replaced by functions that
     fail the test if called; OUT and OUT.partial must not be created.
     """
 
     def forbidden(*args, **kwargs):
         raise AssertionError("sampling started despite bad input")
 
-    monkeypatch.setattr(gsampler, "run_ensembles", forbidden)
-    monkeypatch.setattr(gfit, "run_ensembles", forbidden)
-    monkeypatch.setattr(gfit, "find_starts", forbidden)
+    monkeypatch.setattr(gsampler, "run_side_by_side", forbidden)
+    monkeypatch.setattr(gfit, "run_side_by_side", forbidden)
+    monkeypatch.setattr(gfit, "_find_starts_many", forbidden)
     data = tmp_path / "exp"
     data.mkdir()
     for name in ("experiment.toml", "jumps.csv"):

@@ -501,44 +501,44 @@ def test_a_failing_log_prob_stops_every_ensemble() -> None:
         run_ensemble(broken, start(), N_BLOBS, seed=0, settings=SHORT)
 
 
-def test_warnings_in_ensemble_threads_surface() -> None:
-    """Warnings raised while the ensembles step side by side (``_Lockstep``) reach the caller.
+def banana(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A 3-D curved target (another run beside the Gaussian), with one blob."""
+    y = x[:, 1] - 0.5 * x[:, 0] ** 2
+    lp = -0.5 * (x[:, 0] ** 2 + 4.0 * y * y + x[:, 2] ** 2)
+    return lp, x[:, :1] * 2.0
 
-    Each ensemble steps in a thread of its own (emcee's moves run there), the batched
-    log-probability in the calling thread. A warning from either is shown like any other
-    (here: recorded), and under an ``error`` filter (as in this test suite) it is raised
-    and stops the run, from whichever thread it came.
+
+def test_runs_side_by_side_are_the_runs_alone_with_one_call_per_round() -> None:
+    """``run_side_by_side`` gives every run the chain it has alone, bit for bit.
+
+    Two runs of different dimension (and blob length) are stepped together: each round
+    of requests is one call of ``evaluate`` with both runs' positions, and each run stops
+    by its own rule (here the Gaussian converges first and the banana goes on).
     """
-    from granbayes.sampler import _Lockstep
+    from granbayes.sampler import RunSpec, run_side_by_side
 
-    def log_prob(x: np.ndarray) -> list:  # the batched call, in the calling thread
-        warnings.warn(f"batch of {len(x)}", RuntimeWarning, stacklevel=1)
-        return [(0.0, np.zeros(1))] * len(x)
+    rng = np.random.default_rng(3)
+    banana_start = [0.1 * rng.standard_normal((8, 3)) for _ in range(4)]
+    settings = replace(CONVERGE, check_every=50, max_steps=3000, n_draws=60)
+    calls: list[tuple[int, ...]] = []
 
-    lockstep = _Lockstep(log_prob)
+    def evaluate(xs: dict) -> dict:
+        calls.append(tuple(sorted(xs)))
+        fns = {0: gaussian, 1: banana}
+        return {run: fns[run](x) for run, x in xs.items()}
 
-    def job(i: int):
-        def step() -> None:  # one ensemble's step, in its own thread
-            lockstep.port(i)(np.zeros((2, 1)))
-            warnings.warn(f"ensemble {i}", UserWarning, stacklevel=1)
-
-        return step
-
-    with warnings.catch_warnings(record=True) as record:
-        warnings.simplefilter("always")
-        lockstep.run([job(0), job(1)])
-    shown = sorted((w.category.__name__, str(w.message)) for w in record)
-    expected = [("RuntimeWarning", "batch of 4"), ("UserWarning", "ensemble 0")]
-    assert shown == [*expected, ("UserWarning", "ensemble 1")]
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", UserWarning)
-        warnings.simplefilter("ignore", RuntimeWarning)
-        with pytest.raises(UserWarning, match=r"ensemble [01]"):
-            lockstep.run([job(0), job(1)])
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", RuntimeWarning)
-        with pytest.raises(RuntimeWarning, match="batch of 4"):
-            lockstep.run([job(0), job(1)])
+    specs = [RunSpec(start(), N_BLOBS, seed=1), RunSpec(banana_start, 1, seed=2)]
+    together = run_side_by_side(evaluate, specs, settings)
+    alone = [
+        run_ensemble(gaussian, start(), N_BLOBS, seed=1, settings=settings),
+        run_ensemble(banana, banana_start, 1, seed=2, settings=settings),
+    ]
+    for a, b in zip(together, alone, strict=True):
+        assert_same_run(a, b)
+    assert together[0].n_steps < together[1].n_steps  # stopped apart
+    both = sum(c == (0, 1) for c in calls)
+    # while both run, every round is one call for both (a DE step: 2 rounds per ensemble)
+    assert both >= 2 * together[0].n_steps
 
 
 def test_a_warning_of_the_log_prob_reaches_the_caller_of_run_ensembles() -> None:
