@@ -10,9 +10,10 @@
    cells beyond :func:`misfit_threshold` are *misfit*;
 3. name the cause: every other term of the library is added to the current law, warm-started
    from the current law's posterior (the new parameter at its "off" value), and the
-   candidates are compared by PSIS-LOO (exact leave-one-out refits or K-fold where Pareto
-   k exceeds ArviZ's ``good_k`` (0.7 for the draws of a fit) and the comparison decides
-   the outcome);
+   candidates are compared by PSIS-LOO; where Pareto k exceeds ArviZ's ``good_k`` (0.7
+   for the draws of a fit) and the comparison decides the outcome, the flagged jumps are
+   moment matched (Paananen et al. 2021), and those still flagged are recomputed by exact
+   refits, or by K-fold of their volume fraction where it holds many (``_Pointwise``);
 4. extend, forward, by :func:`decide` (the selection rule below), while misfit remains;
 5. check what is left: the selected law's own misfit cells (``residual_misfit``). Where
    misfit remains that no library term removes, the verdict is ``misfit_remains``: the
@@ -66,9 +67,19 @@ from . import datatree as gdt
 from ._deprecated import alias_getattr
 from ._provenance import environment
 from .experiment import Experiment
-from .fitting import FitResult, FitSettings, fit, screen
+from .fitting import (
+    FitResult,
+    FitSettings,
+    _run_parts,
+    _warm_positions,
+    fit,
+    part_models,
+    screen,
+)
 from .forces import TERMS, terms_of
-from .priors import Prior
+from .likelihood import Observations, evaluate_models
+from .moment_matching import moment_match
+from .priors import Prior, default_priors
 from .sampler import ProgressInfo, SamplerSettings
 from .saved import SavedFit
 
@@ -128,8 +139,10 @@ class DiagnoseSettings:
     kfold : int
         Folds of the K-fold fallback.
     max_refits : int
-        Jumps with Pareto k above ``good_k`` recomputed by exact leave-one-out refits;
-        beyond this number, K-fold cross-validation is used instead.
+        Where jumps keep a Pareto k above ``good_k`` after moment matching: a volume
+        fraction holding at most this many is recomputed by exact leave-one-out refits of
+        those jumps, one with more by K-fold cross-validation of that volume fraction
+        (``kfold`` refits; the default makes the cheaper choice).
     nested_tolerance : float
         ELPD deficit [nats] (beyond 2 SE) of an extension below its nested parent that is
         taken as a sampling failure and rerun.
@@ -157,7 +170,7 @@ class DiagnoseSettings:
     strong_gain: float = 10.0
     family_alpha: float = 0.05
     kfold: int = 5
-    max_refits: int = 10
+    max_refits: int = 5
     nested_tolerance: float = 4.0
     screen: bool = True
     screen_margin: float = 2.0
@@ -500,9 +513,21 @@ class FitBank:
         self.fits: dict[tuple[str, ...], FitResult] = {}
         self.screens: dict[tuple[str, ...], float] = {}
         #: Wall time [s] spent per kind of work (``diagnosis.json``'s ``timing_s``).
-        self.seconds: dict[str, float] = {"fits": 0.0, "screening": 0.0, "held_out_refits": 0.0}
+        self.seconds: dict[str, float] = {
+            "fits": 0.0,
+            "screening": 0.0,
+            "moment_matching": 0.0,
+            "held_out_refits": 0.0,
+        }
         self.loos: dict[tuple[str, ...], dict] = {}
+        #: pointwise ELPD and Pareto k of each law after moment matching (:meth:`moment_matched`)
+        self.matched: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray, int]] = {}
         self.records: dict[tuple[str, ...], FitRecord] = {}
+
+    @property
+    def priors_or_default(self) -> dict[str, Prior]:
+        """The priors of every fit (the defaults unless overridden)."""
+        return dict(self.priors if self.priors is not None else default_priors())
 
     def _fit_config(self, key: tuple[str, ...], scale: int = 1) -> FitSettings:
         s = self.config.sampler
@@ -636,127 +661,237 @@ class FitBank:
         """
         return self.records[key].converged
 
-    # held-out predictions (fallbacks for bad Pareto k)
-    def _heldout(self, key, train: pd.DataFrame, seed: int) -> FitResult:
-        """A fit without some jumps, warm-started from the full fit (lighter settings).
+    # fallbacks for bad Pareto k: moment matching, then refits of single volume fractions
+    def moment_matched(self, key: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, int]:
+        """Pointwise PSIS-LOO of law ``key`` with its bad-k jumps moment matched.
 
-        It only has to predict the held-out jumps' density, a posterior mean over its
-        draws: half the effective sample size and two ensembles (one from the full
-        posterior, one dispersed) suffice for that.
-        """
-        config = self._fit_config(key)
-        s = config.sampler
-        config = replace(config, sampler=replace(s, n_ensembles=2, min_ess=s.min_ess / 2))
-        with self._timed("held_out_refits"):
-            return fit(
-                self.experiment,
-                train,
-                config,
-                seed=seed,
-                priors=self.priors,
-                warm_start=self.fits[key].datatree,
-                progress=self._progress(key, f" (held out, seed {seed})"),
-            )
-
-    def exact_loo(self, key: tuple[str, ...], points: Sequence[int]) -> dict[int, float]:
-        """Exact leave-one-out ELPD of the given jumps: one warm-started refit per jump.
-
-        Only the jump's own volume fraction is refitted (``per_phi`` fits are independent).
+        Every jump whose Pareto k exceeds ``good_k`` is moment matched
+        (:func:`granbayes.moment_matching.moment_match`, Paananen et al. 2021) on the draws
+        of its volume fraction's run, in the run's sampling coordinates; the moved draws of
+        all flagged jumps of a volume fraction are simulated in one batch per stage. Cached
+        per law.
 
         Parameters
         ----------
         key : tuple of str
             The law's terms (canonical order).
-        points : sequence of int
-            Rows of the jumps table to leave out, one at a time.
 
         Returns
         -------
-        dict of int to float
-            Log predictive density [nats] of each left-out jump.
+        elpd_i : ndarray, shape (jump,)
+            Log predictive density of every jump [nats].
+        pareto_k : ndarray, shape (jump,)
+            Pareto k of every jump after moment matching.
+        n_matched : int
+            Jumps moment matching was applied to.
         """
-        out = {}
+        if key in self.matched:
+            return self.matched[key]
+        loo = self.loos[key]
+        elpd_i = np.array(loo["elpd_i"], dtype=float)
+        k = np.array(loo["pareto_k"], dtype=float)
+        bad = np.flatnonzero(k > loo["good_k"])
+        if len(bad):
+            with self._timed("moment_matching"):
+                for part in self.fits[key].parts:
+                    local = np.flatnonzero(np.isin(part.jumps, bad))
+                    if not len(local):
+                        continue
+                    res = moment_match(
+                        part.run.samples,
+                        part.run.log_prob,
+                        part.log_lik,
+                        local,
+                        _part_evaluator(part.model),
+                        k_threshold=loo["good_k"],
+                    )
+                    elpd_i[part.jumps[local]] = res.elpd_i
+                    k[part.jumps[local]] = res.pareto_k
+        self.matched[key] = (elpd_i, k, len(bad))
+        return self.matched[key]
+
+    def held_out(
+        self, requests: Sequence[tuple[tuple[str, ...], float, np.ndarray]]
+    ) -> list[np.ndarray]:
+        """Refits without some jumps, all sampled side by side; their held-out densities.
+
+        A request ``(law, phi, left_out)`` refits law ``law`` on the jumps of volume
+        fraction ``phi`` (``per_phi`` laws are independent across volume fractions) without
+        the rows ``left_out`` of the jumps table, warm-started from the law's full
+        posterior at ``phi``, with lighter settings: two ensembles (one from the full
+        posterior, one dispersed) and half the effective sample size, enough for a
+        posterior mean of the held-out densities. Every request is one run of
+        :func:`granbayes.sampler.run_side_by_side`: one simulator call per round for all.
+
+        Parameters
+        ----------
+        requests : sequence of (tuple of str, float, ndarray of int)
+            Law, volume fraction and the rows to leave out.
+
+        Returns
+        -------
+        list of ndarray
+            Per request, the log predictive density [nats] of each left-out row (in the
+            order given), ``log mean_s p(y | theta_s)`` over the refit's draws.
+        """
         t = self.table
-        for j in points:
-            phi = t.loc[j, "phi"]
-            train = t[(t["phi"] == phi) & (t.index != j)]
-            res = self._heldout(key, train, self.seed + 7919 * (j + 1))
-            out[j] = float(res.log_predictive_density(t.loc[[j]])[0])
+        specs, configs, seeds, warms, outs = [], [], [], [], []
+        for key, phi, left_out in requests:
+            config = self._fit_config(key)
+            s = config.sampler
+            config = replace(config, sampler=replace(s, n_ensembles=2, min_ess=s.min_ess / 2))
+            train = t[(t["phi"] == phi) & ~t.index.isin(left_out)]
+            ((_, model, jumps),) = part_models(
+                self.experiment, train.reset_index(drop=True), config, self.priors_or_default
+            )
+            what = f" (held out: phi={phi:g}, rows {','.join(map(str, left_out))})"
+            specs.append((" + ".join(key) + what, model, jumps))
+            configs.append(config)
+            code = [int(v) for v in np.asarray(left_out)[:8]]
+            seeds.append(self._law_seed(key, 1000 + len(left_out) + 7 * sum(code)))
+            warms.append(_warm_positions(model, self.fits[key].datatree, float(phi)))
+            outs.append(np.asarray(left_out))
+        if not specs:
+            return []
+        self.log(f"  {len(specs)} held-out refit(s), side by side")
+        with self._timed("held_out_refits"):
+            parts = _run_parts(specs, configs, seeds, None, False, warms, self.progress)
+        out = []
+        for part, left_out in zip(parts, outs, strict=True):
+            flat = part.run.samples.reshape(-1, part.run.samples.shape[-1])
+            obs = Observations.from_table(t.loc[left_out])
+            out.append(part.model.log_predictive_density(flat, obs))
         return out
 
-    def kfold_elpd_i(self, key: tuple[str, ...]) -> np.ndarray:
-        """Pointwise K-fold ELPD: each jump predicted by a fit without its fold (stratified).
+    def folds(self, phi: float) -> np.ndarray:
+        """The K-fold assignment of the jumps at ``phi`` (stratified by command), by row.
 
         Parameters
         ----------
-        key : tuple of str
-            The law's terms (canonical order).
+        phi : float
+            Volume fraction.
 
         Returns
         -------
-        ndarray, shape (jump,)
-            Log predictive density [nats] of every jump.
+        ndarray of int
+            Fold of each jump of the table (-1 at other volume fractions).
         """
         t, k = self.table, self.config.kfold
-        rng = np.random.default_rng(self.seed)
-        folds = np.empty(len(t), dtype=int)
-        for _, idx in t.groupby(["phi", "command"]).indices.items():
-            folds[idx] = rng.permutation(len(idx)) % k
-        elpd_i = np.empty(len(t))
-        for f in range(k):
-            res = self._heldout(key, t[folds != f], self.seed + 101 * (f + 1))
-            elpd_i[folds == f] = res.log_predictive_density(t[folds == f])
-        return elpd_i
+        rng = np.random.default_rng([self.seed, round(phi * 1e6)])
+        folds = np.full(len(t), -1)
+        at = t[t["phi"] == phi]
+        for _, idx in at.groupby("command").indices.items():
+            rows = at.index.to_numpy()[idx]
+            folds[rows] = rng.permutation(len(rows)) % k
+        return folds
+
+
+def _part_evaluator(model):
+    """``moment_match``'s density function for one run: moved draws in one simulator call."""
+
+    def evaluate(u: np.ndarray, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        b, n, d = u.shape
+        ev = evaluate_models([model], [u.reshape(b * n, d)])[0]
+        lp = ev.log_prob.reshape(b, n)
+        ll = ev.log_lik.reshape(b, n, -1)[np.arange(b), :, obs]
+        return lp, ll
+
+    return evaluate
 
 
 class _Pointwise:
     """Pointwise ELPD of laws compared together, with the fallbacks for bad Pareto k.
 
-    Jumps with Pareto k above ArviZ's ``good_k`` in any of the compared laws are recomputed
-    for all of them: by exact refits when there are at most ``max_refits`` such jumps,
-    otherwise by K-fold cross-validation of the whole data set. Results are cached per law.
+    For each law, jumps with Pareto k above ArviZ's ``good_k`` are first moment matched
+    (:meth:`FitBank.moment_matched`). Jumps still above ``good_k`` in any of the compared
+    laws are recomputed for all of them, per volume fraction: by exact leave-one-out refits
+    when the volume fraction holds at most ``max_refits`` such jumps, otherwise by K-fold
+    cross-validation of that volume fraction alone (``per_phi`` laws are independent
+    across volume fractions). Every refit of every law is sampled side by side in one
+    batch (:meth:`FitBank.held_out`). Results are cached per law.
+
+    The paired comparison stays paired: PSIS, moment-matched and exact leave-one-out
+    values estimate the same quantity (the density of a jump predicted from all the
+    others), so a jump may get them from different methods in the two laws; K-fold values
+    estimate a different one (from 1 - 1/K of the data), so a volume fraction computed by
+    K-fold is K-fold for every compared law, all its jumps, with the same folds.
 
     Why not ``arviz_stats.reloo`` / ``loo_kfold`` with a ``SamplingWrapper``: the paired
     ELPD difference of two laws needs the *same* jumps recomputed under both, the union of
-    their bad-k sets, while ``reloo`` refits the jumps that one law's own ``ELPDData`` flags;
-    and a refit here is a warm-started, lighter fit of one volume fraction (``per_phi`` fits
-    are independent) whose result is cached per law and reused in later rounds. Both
-    would have to be forced through the wrapper's ``sel_observations``/``sample`` calls
-    and an edited ``ELPDData``. The arithmetic is the same (the log-mean-exp of the
-    held-out log-likelihood over the refit's draws, :meth:`JumpModel.log_predictive_density`).
+    their bad-k sets, while ``reloo`` refits the jumps that one law's own ``ELPDData``
+    flags; a refit here is a warm-started, lighter fit of one volume fraction, sampled
+    side by side with every other refit, and cached per law for later rounds. The
+    arithmetic is the same (the log-mean-exp of the held-out log-likelihood over the
+    refit's draws, :meth:`JumpModel.log_predictive_density`). Moment matching is
+    ArviZ's algorithm, batched over jumps (:mod:`granbayes.moment_matching`).
     """
 
     def __init__(self, bank: FitBank) -> None:
         self.bank = bank
         self.exact: dict[tuple[str, ...], dict[int, float]] = {}
-        self.kfold: dict[tuple[str, ...], np.ndarray] = {}
+        self.kfold: dict[tuple[tuple[str, ...], float], np.ndarray] = {}
 
     def __call__(self, keys: Sequence[tuple[str, ...]]) -> tuple[list[np.ndarray], str]:
-        loos, cfg = self.bank.loos, self.bank.config
+        bank, cfg = self.bank, self.bank.config
+        t = bank.table
+        matched = {key: bank.moment_matched(key) for key in keys}
+        good_k = {key: bank.loos[key]["good_k"] for key in keys}
         bad = sorted(
-            set().union(
-                *(np.flatnonzero(loos[k]["pareto_k"] > loos[k]["good_k"]).tolist() for k in keys)
-            )
+            set().union(*(np.flatnonzero(m[1] > good_k[k]).tolist() for k, m in matched.items()))
         )
+        n_matched = max(m[2] for m in matched.values())
+        method = "psis-loo" + (" + moment matching" if n_matched else "")
+        out = {key: matched[key][0].copy() for key in keys}
         if not bad:
-            return [loos[k]["elpd_i"] for k in keys], "psis-loo"
-        if len(bad) > cfg.max_refits:
-            for k in keys:
-                if k not in self.kfold:
-                    self.bank.log(f"  {len(bad)} jumps with bad Pareto k: {cfg.kfold}-fold CV")
-                    self.kfold[k] = self.bank.kfold_elpd_i(k)
-            return [self.kfold[k] for k in keys], "kfold"
-        out = []
-        for k in keys:
-            done = self.exact.setdefault(k, {})
-            todo = [j for j in bad if j not in done]
-            if todo:
-                self.bank.log(f"  exact leave-one-out refits of {len(todo)} jump(s)")
-                done.update(self.bank.exact_loo(k, todo))
-            e = loos[k]["elpd_i"].copy()
-            e[bad] = [done[j] for j in bad]
-            out.append(e)
-        return out, f"psis-loo + {len(bad)} exact refit(s)"
+            return [out[k] for k in keys], method
+        phi_of = t["phi"].to_numpy(dtype=float)
+        exact_rows, kfold_phis = [], []
+        for phi in np.unique(phi_of[bad]):
+            rows = [j for j in bad if phi_of[j] == phi]
+            (exact_rows.extend(rows) if len(rows) <= cfg.max_refits else kfold_phis.append(phi))
+        requests, where = [], []
+        for key in keys:
+            done = self.exact.setdefault(key, {})
+            for j in exact_rows:
+                if j not in done:
+                    requests.append((key, phi_of[j], np.array([j])))
+                    where.append(("exact", key, j))
+            for phi in kfold_phis:
+                if (key, phi) in self.kfold:
+                    continue
+                folds = bank.folds(phi)
+                for f in range(cfg.kfold):
+                    rows = np.flatnonzero(folds == f)
+                    if len(rows):
+                        requests.append((key, phi, rows))
+                        where.append(("kfold", key, (phi, rows)))
+        if requests:
+            bank.log(
+                f"  {len(bad)} jump(s) with bad Pareto k after moment matching: "
+                f"{len(exact_rows)} exact refit(s) per law"
+                + (f", {cfg.kfold}-fold CV of phi = " if kfold_phis else "")
+                + ", ".join(f"{p:g}" for p in kfold_phis)
+            )
+        results = bank.held_out(requests) if requests else []
+        for (kind, key, what), lpd in zip(where, results, strict=True):
+            if kind == "exact":
+                self.exact[key][what] = float(lpd[0])
+            else:
+                phi, rows = what
+                store = self.kfold.setdefault((key, phi), np.full(len(t), np.nan))
+                store[rows] = lpd
+        for key in keys:
+            e = out[key]
+            for j in exact_rows:
+                e[j] = self.exact[key][j]
+            for phi in kfold_phis:
+                rows = np.flatnonzero(phi_of == phi)
+                e[rows] = self.kfold[(key, phi)][rows]
+        if exact_rows:
+            method += f" + {len(exact_rows)} exact refit(s)"
+        if kfold_phis:
+            method += f" + {cfg.kfold}-fold of phi = " + ", ".join(f"{p:g}" for p in kfold_phis)
+        return [out[k] for k in keys], method
 
 
 # ----------------------------------------------------------------------------------------

@@ -21,6 +21,7 @@ from arviz_stats.base import array_stats
 
 __all__ = [
     "build_datatree",
+    "by_ensemble",
     "run_diagnostics",
     "summary_table",
     "loo",
@@ -342,10 +343,60 @@ def compare(models: Mapping[str, xr.DataTree]) -> pd.DataFrame:
         return az.compare(dict(models), var_name="height_mm")
 
 
+def by_ensemble(dt: xr.DataTree, group: str = "posterior") -> xr.Dataset:
+    """A fit's draws with one chain per independent *ensemble* instead of per walker.
+
+    The walkers of an ensemble move together (each proposal uses the others), so they are
+    not independent chains; the ensembles, started apart, are. Chain ``e`` holds ensemble
+    ``e``'s kept draws in step order, its walkers inside each step (the chains of the
+    stopping rule's R-hat, :mod:`granbayes.sampler`). Where the runs of a fit kept
+    different numbers of ensembles (a stuck ensemble dropped), the walkers stay the chains.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit's DataTree (its ``runs`` attribute gives the ensembles).
+    group : str
+        The group to re-chunk.
+
+    Returns
+    -------
+    xarray.Dataset
+        Dimensions ``chain`` (ensembles), ``draw`` (walkers x draws), then the variables' own.
+    """
+    ds = dt[group].to_dataset()
+    runs = json.loads(dt.attrs.get("runs", "[]"))
+    shapes = {(r["n_ensembles"], r["n_chains"]) for r in runs}
+    n_chain = ds.sizes["chain"]
+    if len(shapes) != 1:
+        return ds
+    ((n_ens, n_chains),) = shapes
+    if n_chains != n_chain or n_chain % n_ens:
+        return ds
+    walkers, n_draw = n_chain // n_ens, ds.sizes["draw"]
+
+    def regroup(da: xr.DataArray) -> xr.DataArray:
+        v = da.transpose("chain", "draw", ...).values
+        v = v.reshape(n_ens, walkers, n_draw, *v.shape[2:]).swapaxes(1, 2)
+        other = [d for d in da.dims if d not in ("chain", "draw")]
+        return xr.DataArray(
+            v.reshape(n_ens, n_draw * walkers, *v.shape[3:]),
+            dims=("chain", "draw", *other),
+            coords={d: da.coords[d] for d in other if d in da.coords},
+            attrs=da.attrs,
+        )
+
+    out = xr.Dataset({name: regroup(da) for name, da in ds.data_vars.items()})
+    return out.assign_coords(chain=np.arange(n_ens), draw=np.arange(n_draw * walkers))
+
+
 def plot_diagnostics(
     dt: xr.DataTree, var_names: Sequence[str], out_dir: Path, stem: str = ""
 ) -> list[Path]:
     """Trace and rank plots (arviz-plots, matplotlib backend) written as PNG files.
+
+    One line per independent ensemble (:func:`by_ensemble`): what the stopping rule's
+    R-hat compares.
 
     Parameters
     ----------
@@ -366,10 +417,11 @@ def plot_diagnostics(
     import arviz_plots as azp
     from matplotlib import pyplot as plt
 
+    tree = xr.DataTree.from_dict({"posterior": by_ensemble(dt)[list(var_names)]})
     written = []
     for kind, fn in (("trace", azp.plot_trace), ("rank", azp.plot_rank)):
         path = Path(out_dir) / f"{kind}{stem}.png"
-        pc = fn(dt, var_names=list(var_names), backend="matplotlib")
+        pc = fn(tree, var_names=list(var_names), backend="matplotlib")
         pc.savefig(path, dpi=110)
         plt.close("all")
         written.append(path)

@@ -401,16 +401,22 @@ def _sampling_fn(models: Sequence[JumpModel]):
 
 def _run_parts(
     specs: Sequence[tuple[str, JumpModel, np.ndarray]],
-    config: FitSettings,
+    config: FitSettings | Sequence[FitSettings],
     seeds: Sequence[int],
     backend: Path | None,
     resume: bool,
     warms: Sequence[np.ndarray | None] | None = None,
     progress: Callable[[str, ProgressInfo], None] | None = None,
-    settings: SamplerSettings | None = None,
 ) -> list[FitPart]:
-    """Sample the runs of a fit side by side (one simulator call per round for all)."""
-    s = settings or config.sampler
+    """Sample runs side by side (one simulator call per round for all).
+
+    ``config`` is the settings of every run, or one per run (the fingerprint of a run's
+    checkpoint); the sampler settings must be the same for all runs.
+    """
+    configs = [config] * len(specs) if isinstance(config, FitSettings) else list(config)
+    s = configs[0].sampler
+    if any(c.sampler != s for c in configs):
+        raise ValueError("runs sampled side by side share their sampler settings")
     warms = list(warms) if warms is not None else [None] * len(specs)
     models = [model for _, model, _ in specs]
     checkpoints = [
@@ -437,7 +443,7 @@ def _run_parts(
                 seed=seeds[i],
                 checkpoint=checkpoints[i],
                 resume=resume,
-                fingerprint=_fingerprint(model, config, seeds[i]),
+                fingerprint=_fingerprint(model, configs[i], seeds[i]),
                 progress=None if progress is None else _labelled(progress, label),
             )
         )
