@@ -207,7 +207,8 @@ def moment_match(
             moved = [_STAGES[stage](u[i], lw[i]) for i in idx]
             u_new = np.stack([mv[0] for mv in moved])
             lp_new, ll_new = run(u_new, idx)
-            ratio = _clean(-ll_new + lp_new - lp0[None])
+            with np.errstate(invalid="ignore"):  # -inf - -inf outside the support: NaN -> -inf
+                ratio = _clean(-ll_new + lp_new - lp0[None])
             lw_new, k_new = _psislw(ratio, r_eff)
             better = k_new < k[idx]
             for j, i in enumerate(idx):
@@ -256,8 +257,8 @@ def moment_match(
                 )
         lp_f, ll_f = run(np.stack(fwd), idx)
         lp_b, _ = run(np.stack(inv), idx)
-        lp_b = lp_b + np.asarray(jac)[:, None]
-        with np.errstate(invalid="ignore"):
+        with np.errstate(invalid="ignore"):  # moved draws outside the support: -inf
+            lp_b = lp_b + np.asarray(jac)[:, None]
             raw = _clean(-ll_f + lp_f - np.logaddexp(lp_f, lp_b))
         lw_half, _ = _psislw(raw, r_eff)
         final_lw[idx] = lw_half
