@@ -97,3 +97,31 @@ def test_same_elpd_and_k_as_arviz(posterior: np.ndarray) -> None:
     assert np.any(res.pareto_k < res.original_k)  # it helped
     # batched: a call serves every flagged observation at its stage
     assert max(calls) == len(flagged) and res.n_evaluations == len(calls)
+
+
+def test_moved_draws_outside_the_support_get_weight_zero(posterior: np.ndarray) -> None:
+    """A bounded prior: draws moved out of it have density 0, silently (no NaN warning).
+
+    With ``mu`` restricted to (-4, 4) (the draws all lie inside) the maps move some
+    draws out; the result is still ArviZ's, and no warning is raised (the suite turns
+    every warning into an error).
+    """
+    inside = np.abs(posterior[..., 0]) < 4.0
+    assert inside.all()
+
+    def bounded(theta: np.ndarray) -> np.ndarray:
+        return np.where(np.abs(theta[..., 0]) < 4.0, log_post(theta), -np.inf)
+
+    outside = []
+
+    def evaluate(u: np.ndarray, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lp = bounded(u)
+        outside.append(int(np.sum(~np.isfinite(lp))))
+        ll = log_lik(u)[np.arange(len(obs)), :, obs]
+        return lp, np.where(np.isfinite(lp), ll, -np.inf)
+
+    ll = log_lik(posterior)
+    flagged = [18, 19]
+    res = moment_match(posterior, bounded(posterior), ll, flagged, evaluate, r_eff=1.0)
+    assert sum(outside) > 0  # the case this test is about happened
+    assert np.all(np.isfinite(res.elpd_i)) and np.all(res.pareto_k <= res.original_k)
