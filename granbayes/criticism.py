@@ -74,7 +74,7 @@ from .fitting import (
     _warm_positions,
     fit,
     part_models,
-    screen,
+    screen_many,
 )
 from .forces import TERMS, terms_of
 from .likelihood import Observations, evaluate_models
@@ -634,18 +634,38 @@ class FitBank:
         float
             See :func:`granbayes.fitting.screen`.
         """
-        key = terms_of(terms)
-        if key not in self.screens:
+        return self.screen_many([terms], parent)[0]
+
+    def screen_many(self, laws: Sequence[Sequence[str]], parent: Sequence[str]) -> list[float]:
+        """:meth:`screen` of several extensions of ``parent``, searched side by side.
+
+        Parameters
+        ----------
+        laws : sequence of sequence of str
+            The extended laws.
+        parent : sequence of str
+            The fitted law they extend.
+
+        Returns
+        -------
+        list of float
+            Their gains [nats] (cached per law; a law's gain does not depend on which
+            others are screened with it).
+        """
+        keys = [terms_of(t) for t in laws]
+        todo = list(dict.fromkeys(k for k in keys if k not in self.screens))
+        if todo:
             with self._timed("screening"):
-                self.screens[key] = screen(
+                gains = screen_many(
                     self.experiment,
                     self.table,
-                    self._fit_config(key),
+                    [self._fit_config(k) for k in todo],
                     self.fits[terms_of(parent)].datatree,
-                    seed=self._law_seed(key, 99),
+                    seeds=[self._law_seed(k, 99) for k in todo],
                     priors=self.priors,
                 )
-        return self.screens[key]
+            self.screens.update(zip(todo, gains, strict=True))
+        return [self.screens[k] for k in keys]
 
     def converged(self, key: tuple[str, ...]) -> bool:
         """Whether the (final) fit of law ``key`` converged.
@@ -1135,7 +1155,8 @@ def _score_round(
     terms = cfg.candidate_terms(current)
     screen_gain = {t: float("nan") for t in terms}
     if cfg.screen:
-        screen_gain = {t: bank.screen((*current, t), current) for t in terms}
+        gains = bank.screen_many([(*current, t) for t in terms], current)
+        screen_gain = dict(zip(terms, gains, strict=True))
         # most promising first; a failed screen (NaN) is fitted in full
         terms = sorted(terms, key=lambda t: -np.nan_to_num(screen_gain[t], nan=np.inf))
     scored: list[tuple[Candidate, tuple[str, ...]]] = []

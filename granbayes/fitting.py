@@ -28,11 +28,11 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 import xarray as xr
-from scipy import optimize
 
 from . import datatree as gdt
 from ._deprecated import alias_getattr
 from ._provenance import environment
+from ._search import drive, nelder_mead
 from .experiment import COMMAND_NAMES, Experiment
 from .forces import PARAMETERS, terms_of
 from .likelihood import (
@@ -682,69 +682,146 @@ def screen(
         Log-likelihood gain [nats], summed over volume fractions (``nan`` if the parent
         has no draws at some volume fraction).
     """
-    if config.phi_mode != "per_phi":
+    return screen_many(
+        experiment, table, [config], parent, seeds=[seed], priors=priors, n_rounds=n_rounds
+    )[0]
+
+
+def screen_many(
+    experiment: Experiment,
+    table: pd.DataFrame,
+    configs: Sequence[FitSettings],
+    parent: xr.DataTree,
+    *,
+    seeds: Sequence[int],
+    priors: Mapping[str, Prior] | None = None,
+    n_rounds: int = 30,
+) -> list[float]:
+    """:func:`screen` for several extensions of one parent, their searches side by side.
+
+    Every (extension, volume fraction) search is the one :func:`screen` makes alone (its
+    own seed and random stream); their evaluations share one simulator call per round
+    (the evolution strategy's rounds, then the Nelder-Mead polish, :mod:`granbayes._search`).
+
+    Parameters
+    ----------
+    experiment : Experiment
+    table : pandas.DataFrame
+        Validated jumps.
+    configs : sequence of FitSettings
+        The extended laws (``per_phi`` mode).
+    parent : xarray.DataTree
+        The fitted nested parent law.
+    seeds : sequence of int
+        Seed of each extension's search.
+    priors : mapping of str to Prior, optional
+    n_rounds : int
+        Rounds of the local search per volume fraction.
+
+    Returns
+    -------
+    list of float
+        Log-likelihood gain [nats] of each extension, summed over volume fractions
+        (``nan`` if the parent has no draws at some volume fraction).
+    """
+    if any(c.phi_mode != "per_phi" for c in configs):
         raise ValueError("screening needs phi_mode='per_phi'")
     priors = dict(priors if priors is not None else default_priors())
     table = _prepare(table)
     names = parent.attrs.get("parameters", "[]")  # JSON text (netCDF attributes)
     parent_names = set(json.loads(names) if isinstance(names, str) else names)
-    total = 0.0
-    specs = part_models(experiment, table, config, priors)
-    for (_, model, _), part_seed in zip(specs, _seeds(seed, len(specs)), strict=True):
-        warm = _warm_positions(model, parent, float(model.phis[0]), best=8)
-        if warm is None or len(warm) == 0:
-            return float("nan")
-        new = np.array(
-            [not (n.startswith("sigma_mm") or n in parent_names) for n in model.coordinate_names]
-        )
-        total += _screen_part(model, warm, new, np.random.default_rng(part_seed), n_rounds)
-    return total
+    problems, owner, failed = [], [], set()
+    for c, (config, seed) in enumerate(zip(configs, seeds, strict=True)):
+        specs = part_models(experiment, table, config, priors)
+        for (_, model, _), part_seed in zip(specs, _seeds(seed, len(specs)), strict=True):
+            warm = _warm_positions(model, parent, float(model.phis[0]), best=8)
+            if warm is None or len(warm) == 0:
+                failed.add(c)
+                continue
+            new = np.array(
+                [
+                    not (n.startswith("sigma_mm") or n in parent_names)
+                    for n in model.coordinate_names
+                ]
+            )
+            problems.append((model, warm, new, np.random.default_rng(part_seed)))
+            owner.append(c)
+    gains = _screen_searches(problems, n_rounds)
+    total = [0.0] * len(configs)
+    for c, g in zip(owner, gains, strict=True):
+        total[c] += g
+    return [float("nan") if c in failed else t for c, t in enumerate(total)]
 
 
-def _screen_part(
-    model: JumpModel, warm: np.ndarray, new: np.ndarray, rng: np.random.Generator, n_rounds: int
-) -> float:
-    """Log-likelihood gain [nats] of one run over the parent's best draws (see ``screen``)."""
+def _screen_searches(problems: Sequence[tuple], n_rounds: int) -> list[float]:
+    """Log-likelihood gains [nats] over the parent's best draws, searched side by side.
 
-    def log_lik(u: np.ndarray) -> np.ndarray:
-        lp, ll = model(u)
-        return np.where(np.isfinite(lp), ll.sum(axis=1), -np.inf)
+    Per problem ``(model, warm, new, rng)``: a (1+12) evolution strategy from the parent's
+    best draws with the new coordinates at "off" and at three levels across their prior
+    ranges (step size by success), then Nelder-Mead from its best point (see ``screen``).
+    """
+    if not problems:
+        return []
+    models = [p[0] for p in problems]
 
-    f_parent = float(np.max(log_lik(warm)))
-    lo, hi = model.bounds_u.T
-    width = hi - lo
-    starts = []
-    for level in (0.0, 0.1, 0.3, 0.6):
-        x = warm[:2].copy()
-        x[:, new] = np.maximum(x[:, new], lo[new] + level * width[new])
-        starts.append(x)
-    x = np.concatenate(starts)
-    f = log_lik(x)
-    spread = np.std(warm, axis=0) if len(warm) > 1 else np.zeros(model.ndim)
-    base = np.where(new, 0.1 * width, np.maximum(spread, 1e-3 * width))
-    scale = np.tile(base, (len(x), 1))
+    def log_lik(us: Sequence[np.ndarray], which: Sequence[int] | None = None) -> list:
+        """Summed log-likelihood (-inf outside the prior) of positions, one batch."""
+        evs = evaluate_models(models if which is None else [models[i] for i in which], us)
+        return [np.where(np.isfinite(ev.log_prob), ev.log_lik.sum(axis=1), -np.inf) for ev in evs]
+
+    f_parent = [float(np.max(v)) for v in log_lik([p[1] for p in problems])]
+    xs, fs, scales, bounds = [], [], [], []
+    for model, warm, new, _ in problems:
+        lo, hi = model.bounds_u.T
+        width = hi - lo
+        starts = []
+        for level in (0.0, 0.1, 0.3, 0.6):
+            x = warm[:2].copy()
+            x[:, new] = np.maximum(x[:, new], lo[new] + level * width[new])
+            starts.append(x)
+        xs.append(np.concatenate(starts))
+        spread = np.std(warm, axis=0) if len(warm) > 1 else np.zeros(model.ndim)
+        base = np.where(new, 0.1 * width, np.maximum(spread, 1e-3 * width))
+        scales.append(np.tile(base, (len(xs[-1]), 1)))
+        bounds.append((lo, hi, width))
+    fs = log_lik(xs)
     n_prop = 12
     for _ in range(n_rounds):  # (1+12) evolution strategy, step size by success
-        step = rng.standard_normal((len(x), n_prop, model.ndim))
-        prop = np.clip(x[:, None, :] + scale[:, None, :] * step, lo, hi)
-        f_prop = log_lik(prop.reshape(-1, model.ndim)).reshape(len(x), n_prop)
-        j = np.argmax(f_prop, axis=1)
-        better = f_prop[np.arange(len(x)), j] > f
-        x[better] = prop[better, j[better]]
-        f[better] = f_prop[better, j[better]]
-        scale[better] = np.minimum(scale[better] * 1.5, 0.25 * width)
-        scale[~better] *= 0.6
-    best = int(np.argmax(f))
-    polished = optimize.minimize(
-        lambda v: -float(log_lik(np.clip(v, lo, hi)[None])[0]),
-        x[best],
-        method="Nelder-Mead",
-        options={"maxfev": 60 * model.ndim, "xatol": 1e-4, "fatol": 1e-3, "adaptive": True},
-    )
-    return max(max(float(f[best]), -float(polished.fun)) - f_parent, 0.0)
+        props = []
+        for (model, _, _, rng), x, scale, (lo, hi, _) in zip(
+            problems, xs, scales, bounds, strict=True
+        ):
+            step = rng.standard_normal((len(x), n_prop, model.ndim))
+            props.append(np.clip(x[:, None, :] + scale[:, None, :] * step, lo, hi))
+        f_props = log_lik([p.reshape(-1, p.shape[-1]) for p in props])
+        for i, (prop, fp) in enumerate(zip(props, f_props, strict=True)):
+            x, f, scale, (_, _, width) = xs[i], fs[i], scales[i], bounds[i]
+            fp = fp.reshape(len(x), n_prop)
+            j = np.argmax(fp, axis=1)
+            better = fp[np.arange(len(x)), j] > f
+            x[better] = prop[better, j[better]]
+            f[better] = fp[better, j[better]]
+            scale[better] = np.minimum(scale[better] * 1.5, 0.25 * width)
+            scale[~better] *= 0.6
+    best = [int(np.argmax(f)) for f in fs]
+    searches = [
+        nelder_mead(x[b], maxfev=60 * model.ndim, xatol=1e-4, fatol=1e-3, adaptive=True)
+        for (model, *_), x, b in zip(problems, xs, best, strict=True)
+    ]
+
+    def objective(points: list[np.ndarray], which: list[int]) -> np.ndarray:
+        clipped = [
+            np.clip(p, bounds[i][0], bounds[i][1])[None] for p, i in zip(points, which, strict=True)
+        ]
+        return -np.array([v[0] for v in log_lik(clipped, which)])
+
+    polished = drive(searches, objective)
+    return [
+        max(max(float(f[b]), -float(pol[1])) - fp, 0.0)
+        for f, b, pol, fp in zip(fs, best, polished, f_parent, strict=True)
+    ]
 
 
-# ----------------------------------------------------------------------------------------
 def _replicate(part: FitPart, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Simulated mean heights and noisy replicates for the kept draws: (chain, draw, obs).
 

@@ -715,6 +715,19 @@ def test_screen_gain_is_large_for_the_hidden_term_and_small_for_another(drag_cas
     assert 0.0 <= stiff < DiagnoseSettings().min_gain
 
 
+def test_screening_side_by_side_is_screening_one_by_one(drag_case) -> None:
+    """``screen_many`` (every candidate's searches sharing simulator calls) gives each
+    candidate exactly the gain ``screen`` gives it alone (same seeds: the same search)."""
+    from granbayes.fitting import FitSettings, screen, screen_many
+
+    table, _, d, _ = drag_case
+    parent = d.baseline.datatree
+    configs = [FitSettings(terms=("depth", t)) for t in ("drag", "viscous", "stiffening")]
+    alone = [screen(Experiment(), table, c, parent, seed=7 + i) for i, c in enumerate(configs)]
+    together = screen_many(Experiment(), table, configs, parent, seeds=[7, 8, 9])
+    assert together == alone
+
+
 def test_a_screened_out_candidate_is_listed_not_fitted(tmp_path: Path) -> None:
     """Screening on: an absent term is screened out (no fit, null ELPD in diagnosis.json,
     "screened out" in the report); the hidden drag is fitted and added as before."""
