@@ -19,8 +19,9 @@ from collections.abc import Callable, Generator, Sequence
 
 import numpy as np
 
-#: A search: yields a point (1-D array), receives its value, returns its result.
-Search = Generator[np.ndarray, float, object]
+#: A search: yields what it needs evaluated (for Nelder-Mead a point), receives the value,
+#: returns its result.
+Search = Generator[object, object, object]
 
 
 def drive(
@@ -33,8 +34,9 @@ def drive(
     searches : sequence of generator
         The searches (started here).
     evaluate : callable
-        ``evaluate(points, which) -> values``: the points of the searches ``which`` (their
-        indices in ``searches``), in one call.
+        ``evaluate(requests, which) -> values``: the pending requests of the searches
+        ``which`` (their indices in ``searches``), in one call; each search receives its
+        value as it is.
 
     Returns
     -------
@@ -54,7 +56,7 @@ def drive(
         nxt = {}
         for i, v in zip(order, values, strict=True):
             try:
-                nxt[i] = searches[i].send(float(v))
+                nxt[i] = searches[i].send(v)
             except StopIteration as stop:
                 results[i] = stop.value
         pending = nxt
@@ -116,7 +118,7 @@ def nelder_mead(
         if calls >= maxfev:
             break
         calls += 1
-        fsim[k] = yield sim[k].copy()
+        fsim[k] = float((yield sim[k].copy()))
     order()
     while calls < maxfev:
         small = np.max(np.abs(sim[1:] - sim[0])) <= xatol
@@ -125,14 +127,14 @@ def nelder_mead(
         xbar = np.add.reduce(sim[:-1], 0) / n
         xr = (1 + rho) * xbar - rho * sim[-1]
         calls += 1
-        fxr = yield xr
+        fxr = float((yield xr))
         shrink = False
         if fxr < fsim[0]:
             xe = (1 + rho * chi) * xbar - rho * chi * sim[-1]
             if calls >= maxfev:
                 break
             calls += 1
-            fxe = yield xe
+            fxe = float((yield xe))
             if fxe < fxr:
                 sim[-1], fsim[-1] = xe, fxe
             else:
@@ -145,7 +147,7 @@ def nelder_mead(
                 if calls >= maxfev:
                     break
                 calls += 1
-                fxc = yield xc
+                fxc = float((yield xc))
                 if fxc <= fxr:
                     sim[-1], fsim[-1] = xc, fxc
                 else:
@@ -155,7 +157,7 @@ def nelder_mead(
                 if calls >= maxfev:
                     break
                 calls += 1
-                fxcc = yield xcc
+                fxcc = float((yield xcc))
                 if fxcc < fsim[-1]:
                     sim[-1], fsim[-1] = xcc, fxcc
                 else:
@@ -166,7 +168,7 @@ def nelder_mead(
                     if calls >= maxfev:
                         break
                     calls += 1
-                    fsim[j] = yield sim[j].copy()
+                    fsim[j] = float((yield sim[j].copy()))
         order()
     order()
     return sim[0].copy(), float(np.min(fsim)), calls

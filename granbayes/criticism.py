@@ -66,6 +66,7 @@ from scipy import stats
 from . import datatree as gdt
 from ._deprecated import alias_getattr
 from ._provenance import environment
+from ._search import drive
 from .experiment import Experiment
 from .fitting import (
     FitResult,
@@ -78,7 +79,7 @@ from .fitting import (
 )
 from .forces import TERMS, terms_of
 from .likelihood import Observations, evaluate_models
-from .moment_matching import moment_match
+from .moment_matching import moment_match_search
 from .priors import Prior, default_priors
 from .sampler import ProgressInfo, SamplerSettings
 from .saved import SavedFit
@@ -104,6 +105,9 @@ __all__ = [
 
 #: Deprecated alias (old name -> new name): importable, with a DeprecationWarning.
 __getattr__ = alias_getattr(__name__, {"DiagnoseConfig": "DiagnoseSettings"})
+
+#: Most posterior draws a law's moment matching uses per volume fraction (thinned evenly).
+MM_DRAWS = 1000
 
 #: The settings that define one cell of repeated jumps.
 CELL_KEYS = ("command", "phi", "freq_hz", "amplitude_mm", "delay_ms", "settle_periods")
@@ -520,7 +524,8 @@ class FitBank:
             "held_out_refits": 0.0,
         }
         self.loos: dict[tuple[str, ...], dict] = {}
-        #: pointwise ELPD and Pareto k of each law after moment matching (:meth:`moment_matched`)
+        #: pointwise ELPD of each law after moment matching, and whether each value is
+        #: reliable (:meth:`moment_matched`)
         self.matched: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray, int]] = {}
         self.records: dict[tuple[str, ...], FitRecord] = {}
 
@@ -685,11 +690,7 @@ class FitBank:
     def moment_matched(self, key: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, int]:
         """Pointwise PSIS-LOO of law ``key`` with its bad-k jumps moment matched.
 
-        Every jump whose Pareto k exceeds ``good_k`` is moment matched
-        (:func:`granbayes.moment_matching.moment_match`, Paananen et al. 2021) on the draws
-        of its volume fraction's run, in the run's sampling coordinates; the moved draws of
-        all flagged jumps of a volume fraction are simulated in one batch per stage. Cached
-        per law.
+        See :meth:`moment_matched_many`.
 
         Parameters
         ----------
@@ -700,35 +701,85 @@ class FitBank:
         -------
         elpd_i : ndarray, shape (jump,)
             Log predictive density of every jump [nats].
-        pareto_k : ndarray, shape (jump,)
-            Pareto k of every jump after moment matching.
+        reliable : ndarray of bool, shape (jump,)
+            Whether a jump's value is reliable: its Pareto k, after moment matching where
+            it was applied, at most the ``good_k`` of the draws it was computed from.
         n_matched : int
             Jumps moment matching was applied to.
         """
-        if key in self.matched:
-            return self.matched[key]
-        loo = self.loos[key]
-        elpd_i = np.array(loo["elpd_i"], dtype=float)
-        k = np.array(loo["pareto_k"], dtype=float)
-        bad = np.flatnonzero(k > loo["good_k"])
-        if len(bad):
-            with self._timed("moment_matching"):
-                for part in self.fits[key].parts:
-                    local = np.flatnonzero(np.isin(part.jumps, bad))
-                    if not len(local):
-                        continue
-                    res = moment_match(
-                        part.run.samples,
-                        part.run.log_prob,
-                        part.log_lik,
+        return self.moment_matched_many([key])[0]
+
+    def moment_matched_many(
+        self, keys: Sequence[tuple[str, ...]]
+    ) -> list[tuple[np.ndarray, np.ndarray, int]]:
+        """Pointwise PSIS-LOO of laws with their bad-k jumps moment matched (cached per law).
+
+        Every jump whose Pareto k exceeds ``good_k`` is moment matched
+        (:mod:`granbayes.moment_matching`, Paananen et al. 2021) on the draws of its volume
+        fraction's run, in the run's sampling coordinates, thinned evenly to at most
+        :data:`MM_DRAWS` draws (each stage simulates every flagged jump's moved draws: its
+        cost is proportional to the draws, and PSIS needs nearly independent draws, not
+        many; its own ``good_k`` is that of the draws it uses). The flagged jumps of every
+        volume fraction of every law go through the stages together, one simulator call
+        per round (:func:`granbayes._search.drive`).
+
+        Parameters
+        ----------
+        keys : sequence of tuple of str
+            The laws.
+
+        Returns
+        -------
+        list of (ndarray, ndarray, int)
+            Per law: ``elpd_i`` [nats] and whether it is reliable, for every jump, and the
+            number of jumps moment matched (see :meth:`moment_matched`).
+        """
+        todo = [k for k in dict.fromkeys(keys) if k not in self.matched]
+        searches, where = [], []
+        for key in todo:
+            loo = self.loos[key]
+            elpd_i = np.array(loo["elpd_i"], dtype=float)
+            reliable = np.asarray(loo["pareto_k"]) <= loo["good_k"]
+            bad = np.flatnonzero(~reliable)
+            self.matched[key] = (elpd_i, reliable, len(bad))
+            for part in self.fits[key].parts:
+                local = np.flatnonzero(np.isin(part.jumps, bad))
+                if not len(local):
+                    continue
+                n_chain, n_draw = part.run.samples.shape[:2]
+                step = max(1, -(-n_chain * n_draw // MM_DRAWS))
+                thin = slice(n_draw - 1 - (n_draw - 1) // step * step, None, step)
+                searches.append(
+                    moment_match_search(
+                        part.run.samples[:, thin],
+                        part.run.log_prob[:, thin],
+                        part.log_lik[:, thin],
                         local,
-                        _part_evaluator(part.model),
-                        k_threshold=loo["good_k"],
                     )
-                    elpd_i[part.jumps[local]] = res.elpd_i
-                    k[part.jumps[local]] = res.pareto_k
-        self.matched[key] = (elpd_i, k, len(bad))
-        return self.matched[key]
+                )
+                where.append((key, part))
+        if searches:
+            with self._timed("moment_matching"):
+                models = [part.model for _, part in where]
+
+                def evaluate(requests: list, which: list[int]) -> list:
+                    shapes = [u.shape for u, _ in requests]
+                    evs = evaluate_models(
+                        [models[i] for i in which],
+                        [u.reshape(-1, u.shape[-1]) for u, _ in requests],
+                    )
+                    out = []
+                    for ev, (b, n, _), (_, obs) in zip(evs, shapes, requests, strict=True):
+                        ll = ev.log_lik.reshape(b, n, -1)[np.arange(b), :, obs]
+                        out.append((ev.log_prob.reshape(b, n), ll))
+                    return out
+
+                results = drive(searches, evaluate)
+            for (key, part), res in zip(where, results, strict=True):
+                elpd_i, reliable, _ = self.matched[key]
+                elpd_i[part.jumps[res.obs]] = res.elpd_i
+                reliable[part.jumps[res.obs]] = res.pareto_k <= res.k_threshold
+        return [self.matched[k] for k in keys]
 
     def held_out(
         self, requests: Sequence[tuple[tuple[str, ...], float, np.ndarray]]
@@ -806,19 +857,6 @@ class FitBank:
         return folds
 
 
-def _part_evaluator(model):
-    """``moment_match``'s density function for one run: moved draws in one simulator call."""
-
-    def evaluate(u: np.ndarray, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        b, n, d = u.shape
-        ev = evaluate_models([model], [u.reshape(b * n, d)])[0]
-        lp = ev.log_prob.reshape(b, n)
-        ll = ev.log_lik.reshape(b, n, -1)[np.arange(b), :, obs]
-        return lp, ll
-
-    return evaluate
-
-
 class _Pointwise:
     """Pointwise ELPD of laws compared together, with the fallbacks for bad Pareto k.
 
@@ -854,11 +892,8 @@ class _Pointwise:
     def __call__(self, keys: Sequence[tuple[str, ...]]) -> tuple[list[np.ndarray], str]:
         bank, cfg = self.bank, self.bank.config
         t = bank.table
-        matched = {key: bank.moment_matched(key) for key in keys}
-        good_k = {key: bank.loos[key]["good_k"] for key in keys}
-        bad = sorted(
-            set().union(*(np.flatnonzero(m[1] > good_k[k]).tolist() for k, m in matched.items()))
-        )
+        matched = dict(zip(keys, bank.moment_matched_many(keys), strict=True))
+        bad = sorted(set().union(*(np.flatnonzero(~m[1]).tolist() for m in matched.values())))
         n_matched = max(m[2] for m in matched.values())
         method = "psis-loo" + (" + moment matching" if n_matched else "")
         out = {key: matched[key][0].copy() for key in keys}

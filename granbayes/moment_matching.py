@@ -23,14 +23,14 @@ observation and stage, the same arithmetic.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from arviz_stats.base import array_stats
 from scipy.special import logsumexp
 
-__all__ = ["MomentMatch", "moment_match"]
+__all__ = ["MomentMatch", "moment_match", "moment_match_search"]
 
 #: ``evaluate(draws, obs)``: for draws of shape (B, S, ndim) and observation indices (B,),
 #: the log posterior density (B, S) at the draws (unnormalised, in the draws' coordinates)
@@ -53,6 +53,8 @@ class MomentMatch:
         Their Pareto k after moment matching (the original where it did not improve).
     original_k : ndarray
         Their Pareto k before.
+    k_threshold : float
+        The ``good_k`` of the draws used: above it a value is unreliable.
     n_evaluations : int
         Calls of ``evaluate`` made.
     """
@@ -61,6 +63,7 @@ class MomentMatch:
     elpd_i: np.ndarray
     pareto_k: np.ndarray
     original_k: np.ndarray
+    k_threshold: float
     n_evaluations: int
 
 
@@ -166,6 +169,43 @@ def moment_match(
     -------
     MomentMatch
     """
+    search = moment_match_search(
+        draws,
+        log_prob,
+        log_lik,
+        obs,
+        r_eff=r_eff,
+        k_threshold=k_threshold,
+        max_iters=max_iters,
+        split=split,
+        cov=cov,
+    )
+    try:
+        request = next(search)
+        while True:
+            request = search.send(evaluate(*request))
+    except StopIteration as stop:
+        return stop.value
+
+
+def moment_match_search(
+    draws: np.ndarray,
+    log_prob: np.ndarray,
+    log_lik: np.ndarray,
+    obs: Sequence[int],
+    *,
+    r_eff: float = 1.0,
+    k_threshold: float | None = None,
+    max_iters: int = 30,
+    split: bool = True,
+    cov: bool = True,
+) -> Generator[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], MomentMatch]:
+    """:func:`moment_match` as a generator: it yields ``(draws, obs)`` to evaluate.
+
+    It receives ``(log_prob, log_lik)`` for each request and returns the
+    :class:`MomentMatch`; several of them (models) can share calls
+    (:func:`granbayes._search.drive`). Parameters as :func:`moment_match`.
+    """
     n_chain, n_draw, ndim = draws.shape
     n = n_chain * n_draw
     if k_threshold is None:
@@ -177,12 +217,6 @@ def moment_match(
     lp0 = np.swapaxes(log_prob, 0, 1).reshape(n)
     ll0 = np.swapaxes(log_lik, 0, 1).reshape(n, -1)[:, obs].T  # (m, S)
     calls = 0
-
-    def run(u: np.ndarray, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        nonlocal calls
-        calls += 1
-        lp, ll = evaluate(u, obs[which])
-        return np.asarray(lp, dtype=float), np.asarray(ll, dtype=float)
 
     lw, k = _psislw(-ll0, r_eff)
     original_k = k.copy()
@@ -206,7 +240,9 @@ def moment_match(
                 break
             moved = [_STAGES[stage](u[i], lw[i]) for i in idx]
             u_new = np.stack([mv[0] for mv in moved])
-            lp_new, ll_new = run(u_new, idx)
+            calls += 1
+            lp_new, ll_new = yield u_new, obs[idx]
+            lp_new, ll_new = np.asarray(lp_new, dtype=float), np.asarray(ll_new, dtype=float)
             with np.errstate(invalid="ignore"):  # -inf - -inf outside the support: NaN -> -inf
                 ratio = _clean(-ll_new + lp_new - lp0[None])
             lw_new, k_new = _psislw(ratio, r_eff)
@@ -255,8 +291,10 @@ def moment_match(
                 jac.append(
                     -np.sum(np.log(total_scaling[i])) - np.log(np.linalg.det(total_mapping[i]))
                 )
-        lp_f, ll_f = run(np.stack(fwd), idx)
-        lp_b, _ = run(np.stack(inv), idx)
+        calls += 2
+        lp_f, ll_f = yield np.stack(fwd), obs[idx]
+        lp_b, _ = yield np.stack(inv), obs[idx]
+        lp_f, ll_f, lp_b = (np.asarray(v, dtype=float) for v in (lp_f, ll_f, lp_b))
         with np.errstate(invalid="ignore"):  # moved draws outside the support: -inf
             lp_b = lp_b + np.asarray(jac)[:, None]
             raw = _clean(-ll_f + lp_f - np.logaddexp(lp_f, lp_b))
@@ -272,5 +310,6 @@ def moment_match(
         elpd_i=np.where(improved, elpd_new, elpd_orig),
         pareto_k=np.where(improved, k, original_k),
         original_k=original_k,
+        k_threshold=float(k_threshold),
         n_evaluations=calls,
     )
