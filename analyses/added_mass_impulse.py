@@ -23,19 +23,19 @@ import pandas as pd
 import _common as common
 import granbayes
 from granbayes import COMMAND_NAMES, InputError
-from granbayes.analysis import (
+from granbayes.analysis import cell_experiment
+from granbayes.likelihood import SETTING_COLUMNS
+from granbayes.mechanics import MAX_STEP_S, integral_check, simulate_impulses
+from granbayes.plots import plot_added_mass, plot_vs_kappa
+from granbayes.priors import default_priors
+from granbayes.stats import (
     CI_PROB,
-    cell_experiment,
     correlation,
     fmt_interval,
     fmt_triple,
     interval,
     posterior_draws,
 )
-from granbayes.likelihood import SETTING_COLUMNS
-from granbayes.mechanics import MAX_STEP_S, integral_check, simulate_impulses
-from granbayes.plots import plot_added_mass, plot_vs_kappa
-from granbayes.priors import default_priors
 
 NAME = "added_mass_impulse"
 
@@ -68,7 +68,7 @@ def _propagated(r: dict) -> str:
 
 
 def _fmt_r(r: dict) -> str:
-    """A correlation entry of :func:`granbayes.analysis.correlation` in words."""
+    """A correlation entry of :func:`granbayes.stats.correlation` in words."""
     return (
         f"{r['point']:+.2f} from the medians; propagated {_propagated(r)}, "
         f"P(r > 0) = {r['p_positive']:.2f}"

@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 
 import _common as common
-from granbayes.analysis import cell_statistics
 from granbayes.plots import plot_heights_vs_phi
+from granbayes.stats import cell_statistics
 
 NAME = "heights_vs_phi"
 

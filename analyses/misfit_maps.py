@@ -20,7 +20,6 @@ import pandas as pd
 
 import _common as common
 from granbayes import InputError
-from granbayes.analysis import fmt_triple, interval
 from granbayes.maps import (
     CD_MAX_KG_PER_M,
     K_RANGE_N_PER_M,
@@ -35,6 +34,7 @@ from granbayes.maps import (
     valley_table,
 )
 from granbayes.plots import plot_misfit_maps, plot_valleys
+from granbayes.stats import fmt_triple, interval
 
 NAME = "misfit_maps"
 

@@ -20,9 +20,9 @@ import numpy as np
 import pandas as pd
 
 import _common as common
-from granbayes.analysis import CI_PROB, posterior_intervals
 from granbayes.fitting import compare_commands
 from granbayes.plots import plot_coefficients_vs_phi
+from granbayes.stats import CI_PROB, posterior_intervals
 
 NAME = "one_force_law"
 

@@ -28,7 +28,6 @@ import xarray as xr
 
 import _common as common
 from granbayes import InputError, load_fit
-from granbayes.analysis import CI_PROB, fmt_triple, interval
 from granbayes.optimal import (
     MAX_FAIL_FRACTION,
     N_NOISE,
@@ -44,6 +43,7 @@ from granbayes.optimal import (
 )
 from granbayes.optimal import describe_setting as describe
 from granbayes.plots import plot_delay_curves, plot_optimum_vs_frequency, plot_optimum_vs_phi
+from granbayes.stats import CI_PROB, fmt_triple, interval
 
 NAME = "optimal_jumping"
 

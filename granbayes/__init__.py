@@ -54,12 +54,13 @@ from .simulator import (
 )
 
 if TYPE_CHECKING:
-    from .criticism import DiagnoseSettings, Diagnosis, diagnose, residual_table
+    from .criticism import DiagnoseSettings, Diagnosis, diagnose
     from .fitting import CommandComparison, FitResult, FitSettings, compare_commands, fit
     from .prediction import Prediction, predict
     from .priors import Prior, default_priors, load_priors
     from .sampler import SamplerSettings
     from .saved import SavedFit, load_fit
+    from .stats import residual_table
 
 try:  # the version is written once, in pyproject.toml
     __version__ = _metadata.version("granbayes")
@@ -81,7 +82,7 @@ _LAZY = {
     "diagnose": "criticism",
     "DiagnoseSettings": "criticism",
     "Diagnosis": "criticism",
-    "residual_table": "criticism",
+    "residual_table": "stats",
     "Prior": "priors",
     "default_priors": "priors",
     "load_priors": "priors",

@@ -52,7 +52,6 @@ is what bounds the cost of that optimism at the threshold.
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -61,9 +60,8 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 import pandas as pd
 import xarray as xr
-from scipy import stats
 
-from . import datatree as gdt
+from . import stats
 from ._deprecated import alias_getattr
 from ._provenance import environment
 from ._search import drive
@@ -79,27 +77,19 @@ from .fitting import (
 )
 from .forces import TERMS, terms_of
 from .likelihood import Observations, evaluate_models
-from .moment_matching import moment_match_search
 from .priors import Prior, default_priors
 from .sampler import ProgressInfo, SamplerSettings
 from .saved import SavedFit
 
 __all__ = [
-    "CELL_KEYS",
     "Candidate",
     "DiagnoseSettings",
     "Diagnosis",
     "FitBank",
-    "IDENTIFIABILITY_LEVELS",
     "decide",
     "distinguished",
-    "describe_cell",
     "diagnose",
-    "identifiability_table",
-    "misfit_threshold",
-    "residual_table",
     "rivals",
-    "rmse_mm",
     "verdict",
 ]
 
@@ -108,9 +98,6 @@ __getattr__ = alias_getattr(__name__, {"DiagnoseConfig": "DiagnoseSettings"})
 
 #: Most posterior draws a law's moment matching uses per volume fraction (thinned evenly).
 MM_DRAWS = 1000
-
-#: The settings that define one cell of repeated jumps.
-CELL_KEYS = ("command", "phi", "freq_hz", "amplitude_mm", "delay_ms", "settle_periods")
 
 
 @dataclass(frozen=True)
@@ -198,264 +185,11 @@ class DiagnoseSettings:
 
 # ----------------------------------------------------------------------------------------
 # residuals
-def _cell_keys(observed: pd.DataFrame) -> list[str]:
-    return [k for k in CELL_KEYS if k in observed.columns]
 
 
 def _tree(fit: xr.DataTree | FitResult | SavedFit) -> xr.DataTree:
     """The DataTree of a fit given as a DataTree, ``FitResult`` or ``SavedFit``."""
     return fit if isinstance(fit, xr.DataTree) else fit.datatree
-
-
-def residual_table(dt: xr.DataTree | FitResult | SavedFit) -> pd.DataFrame:
-    """Residuals of a fitted law per cell of repeated jumps, with significance.
-
-    A cell is one command at one volume fraction and one setting (``CELL_KEYS``: frequency,
-    amplitude, delay, settle periods). For each cell of ``n`` jumps: the observed mean, the
-    posterior mean of the simulated height and ``mean_residual_mm`` = observed - simulated.
-
-    ``z`` (lack of fit, used for decisions)
-        the residual over ``sqrt(s^2 / n + var_post(simulated))``, where ``s^2`` is the
-        trial-to-trial variance *measured* from the repeated jumps (pooled over the cells
-        at the same volume fraction, ``dof`` degrees of freedom) rather than the model's
-        fitted scatter, which a wrong law inflates to absorb its own misfit; ``p_value`` is
-        its two-sided Student-t tail probability. Without repeats the predictive
-        statistics below are used instead (``dof`` = 0).
-    ``z_predictive``, ``p_predictive``
-        the observed cell mean against the posterior predictive distribution of the mean
-        of ``n`` replicated jumps (model scatter included).
-
-    Parameters
-    ----------
-    dt : xarray.DataTree, FitResult or SavedFit
-        A fit (its ``observed_data`` and ``posterior_predictive`` groups are read).
-
-    Returns
-    -------
-    pandas.DataFrame
-        One row per cell, worst (largest |z|) first.
-    """
-    dt = _tree(dt)
-    obs = dt["observed_data"].to_dataset()
-    pp = dt["posterior_predictive"].to_dataset()
-    y = obs["height_mm"].values
-    rep = pp["height_mm"].values.reshape(-1, len(y))
-    sim = pp["height_sim_mm"].values.reshape(-1, len(y))
-    observed = pd.DataFrame({c: obs[c].values for c in obs.coords if c != "jump"})
-    keys = _cell_keys(observed)
-    cells = observed[keys].copy()
-    cells["phi"] = cells["phi"].astype(float)
-    cells["y"] = y
-    grouped = cells.groupby(keys, sort=True)
-    cells["dev2"] = (cells["y"] - grouped["y"].transform("mean")) ** 2
-    cells["dof"] = grouped["y"].transform("size") - 1
-    pooled = {}
-    for phi, g in cells.groupby("phi"):
-        dof = float(g.groupby(keys)["dof"].first().sum())
-        pooled[phi] = (float(g["dev2"].sum()) / dof, dof) if dof > 0 else (np.nan, 0.0)
-    rows = []
-    for key, idx in grouped.indices.items():
-        idx = np.asarray(idx)
-        cell = dict(zip(keys, key, strict=True))
-        n = len(idx)
-        y_mean = float(np.mean(y[idx]))
-        rep_mean = rep[:, idx].mean(axis=1)
-        sim_cell = sim[:, idx].mean(axis=1)
-        sim_mean = float(np.mean(sim_cell))
-        sd_pred = float(np.std(rep_mean))
-        z_pred = (y_mean - float(np.mean(rep_mean))) / sd_pred if sd_pred > 0 else np.inf
-        tail = min(np.mean(rep_mean >= y_mean), np.mean(rep_mean <= y_mean))
-        # the Monte Carlo p-value resolves 1/draws; beyond it, the normal tail of z
-        p_pred = min(1.0, 2.0 * tail if tail > 0 else 2.0 * stats.norm.sf(abs(z_pred)))
-        s2, dof = pooled[cell["phi"]]
-        if dof > 0:
-            se = math.sqrt(s2 / n + float(np.var(sim_cell)))
-            z = (y_mean - sim_mean) / se if se > 0 else np.inf
-            p = float(2.0 * stats.t.sf(abs(z), dof))
-        else:
-            z, p = z_pred, p_pred
-        rows.append(
-            {
-                **cell,
-                "phi": float(cell["phi"]),
-                "n": n,
-                "observed_mm": y_mean,
-                "simulated_mm": sim_mean,
-                "mean_residual_mm": y_mean - sim_mean,
-                "z": z,
-                "p_value": p,
-                "dof": dof,
-                "z_predictive": z_pred,
-                "p_predictive": p_pred,
-            }
-        )
-    table = pd.DataFrame(rows)
-    order = table["z"].abs().sort_values(ascending=False).index
-    return table.reindex(order).reset_index(drop=True)
-
-
-#: Verdicts on the posterior-to-prior contraction ``1 - var_post / var_prior``: the first
-#: level whose upper bound the contraction stays below.
-IDENTIFIABILITY_LEVELS: tuple[tuple[float, str], ...] = (
-    (0.1, "not identified: posterior ~ prior"),
-    (0.5, "weakly identified: the prior still shapes the posterior"),
-    (0.9, "identified"),
-    (math.inf, "well identified: the data dominate the prior"),
-)
-
-
-def identifiability_table(
-    dt: xr.DataTree | FitResult | SavedFit, var_names: Sequence[str] | None = None
-) -> pd.DataFrame:
-    """What the data determine: posterior-to-prior contraction per parameter and phi.
-
-    The contraction ``1 - var_post / var_prior`` (Schad, Betancourt & Vasishth 2021) is 0
-    when the posterior is as wide as the prior (the data say nothing about the parameter)
-    and 1 when the data pin it down. Variances are taken in the coordinate in which the
-    prior is uniform or normal: ``log(value)`` for log-scale priors (``k``, ``r_unload``,
-    ``sigma_mm``), the value itself otherwise, so a contraction does not depend on
-    whether a stiffness is written in N/m or kN/m.
-
-    Parameters
-    ----------
-    dt : xarray.DataTree, FitResult or SavedFit
-        A fit with ``prior`` and ``posterior`` groups (``FitSettings.n_prior_draws > 0``)
-        and its ``priors`` attribute.
-    var_names : sequence of str, optional
-        Parameters (default: the fit's force parameters and ``sigma_mm``).
-
-    Returns
-    -------
-    pandas.DataFrame
-        One row per parameter and volume fraction: ``parameter``, ``phi``, ``scale``
-        (``log`` or ``linear``), ``prior_sd`` and ``posterior_sd`` (in that scale),
-        ``contraction`` and ``verdict`` (:data:`IDENTIFIABILITY_LEVELS`). Empty if the fit
-        stored no prior draws.
-    """
-    dt = _tree(dt)
-    columns = ["parameter", "phi", "scale", "prior_sd", "posterior_sd", "contraction", "verdict"]
-    if "prior" not in dt.children:
-        return pd.DataFrame(columns=columns)
-    priors = {k: Prior(**v) for k, v in json.loads(dt.attrs["priors"]).items()}
-    if var_names is None:
-        var_names = [*json.loads(dt.attrs["parameters"]), "sigma_mm"]
-    prior, post = dt["prior"].to_dataset(), dt["posterior"].to_dataset()
-    rows = []
-    for name in var_names:
-        if name not in prior or name not in post:
-            continue
-        log = priors[name].log_scale if name in priors else False
-        for phi in post["phi"].values:
-            a = prior[name].sel(phi=phi).values.ravel()
-            b = post[name].sel(phi=phi).values.ravel()
-            a, b = a[np.isfinite(a)], b[np.isfinite(b)]
-            if log:
-                a, b = np.log(a[a > 0]), np.log(b[b > 0])
-            if a.size < 2 or b.size < 2:
-                continue
-            var_prior, var_post = float(np.var(a, ddof=1)), float(np.var(b, ddof=1))
-            c = 1.0 - var_post / var_prior if var_prior > 0 else float("nan")
-            verdict = next((t for bound, t in IDENTIFIABILITY_LEVELS if c < bound), "undetermined")
-            rows.append(
-                {
-                    "parameter": name,
-                    "phi": float(phi),
-                    "scale": "log" if log else "linear",
-                    "prior_sd": math.sqrt(var_prior),
-                    "posterior_sd": math.sqrt(var_post),
-                    "contraction": c,
-                    "verdict": verdict,
-                }
-            )
-    return pd.DataFrame(rows, columns=columns)
-
-
-def misfit_threshold(residuals: pd.DataFrame, family_alpha: float) -> float:
-    """|z| beyond which a cell is misfit, for a family-wise false-alarm rate ``family_alpha``.
-
-    Bonferroni over the ``n`` cells of the data set with the Student-t distribution of the
-    pooled scatter's degrees of freedom (the smallest over volume fractions):
-    ``t.isf(family_alpha / (2 n), dof)``; the normal quantile without repeats. Fitting
-    shrinks residuals, so under a correct law the realised rate is at most about this.
-
-    Parameters
-    ----------
-    residuals : pandas.DataFrame
-        The cells (:func:`residual_table`; column ``dof``).
-    family_alpha : float
-        Family-wise false-alarm rate.
-
-    Returns
-    -------
-    float
-        The |z| threshold.
-    """
-    n = max(len(residuals), 1)
-    dof = float(residuals["dof"].min()) if len(residuals) else 0.0
-    q = family_alpha / (2.0 * n)
-    return float(stats.t.isf(q, dof) if dof > 0 else stats.norm.isf(q))
-
-
-def describe_cell(row: Mapping) -> str:
-    """A misfit cell in words.
-
-    For example "delayed stutter preload at phi = 0.592 (12 Hz, 20 mm, 3 periods settled)
-    is under-predicted by 18.1 mm (z = 5.3)". The settings that distinguish cells are
-    named: frequency and amplitude, the delay of a delayed stutter, the settle periods of a
-    delayed stutter preload.
-
-    Parameters
-    ----------
-    row : mapping
-        A row of :func:`residual_table`.
-
-    Returns
-    -------
-    str
-    """
-    verb = "under-predicted" if row["mean_residual_mm"] > 0 else "over-predicted"
-    setting = []
-    if row.get("freq_hz"):
-        setting.append(f"{row['freq_hz']:g} Hz")
-    if row.get("amplitude_mm"):
-        setting.append(f"{row['amplitude_mm']:g} mm")
-    if row.get("command") == "delayed_stutter" and "delay_ms" in row:
-        setting.append(f"{row['delay_ms']:g} ms delay")
-    if row.get("command") == "delayed_stutter_preload" and "settle_periods" in row:
-        setting.append(f"{row['settle_periods']:g} periods settled")
-    setting_text = f" ({', '.join(setting)})" if setting else ""
-    return (
-        f"{str(row['command']).replace('_', ' ')} at phi = {row['phi']:g}{setting_text} is "
-        f"{verb} by {abs(row['mean_residual_mm']):.1f} mm (z = {row['z']:+.1f})"
-    )
-
-
-def rmse_mm(dt: xr.DataTree | FitResult | SavedFit) -> float:
-    """Root-mean-square of observed minus posterior-mean simulated height [mm].
-
-    Parameters
-    ----------
-    dt : xarray.DataTree or FitResult or SavedFit
-        A fit.
-
-    Returns
-    -------
-    float
-    """
-    dt = _tree(dt)
-    y = dt["observed_data"]["height_mm"].values
-    sim = dt["posterior_predictive"]["height_sim_mm"].values.reshape(-1, len(y)).mean(axis=0)
-    return float(np.sqrt(np.mean((y - sim) ** 2)))
-
-
-def _cell_loo(dt: xr.DataTree) -> dict:
-    """Leave-one-cell-out PSIS-LOO: each cell's summed log-likelihood left out at once."""
-    ll = dt["log_likelihood"]["height_mm"].values
-    observed = dt["observed_data"].to_dataset()
-    frame = pd.DataFrame({c: observed[c].values for c in observed.coords if c != "jump"})
-    groups = frame.groupby(_cell_keys(frame), sort=True).indices
-    summed = np.stack([ll[..., np.asarray(idx)].sum(axis=-1) for idx in groups.values()], -1)
-    return gdt.loo(summed)
 
 
 # ----------------------------------------------------------------------------------------
@@ -608,9 +342,9 @@ class FitBank:
             notes.append("not converged: rerun with twice the step cap")
             self.log(f"    {' + '.join(key)} did not converge: rerun")
             result, reruns = self._run(key, parent_key, 1), reruns + 1
-        loo = gdt.loo(result.datatree)
+        loo = stats.loo(result.datatree)
         if parent_key is not None and reruns == 0:
-            diff, se = gdt.elpd_difference(loo["elpd_i"], self.loos[parent_key]["elpd_i"])
+            diff, se = stats.elpd_difference(loo["elpd_i"], self.loos[parent_key]["elpd_i"])
             if diff < -(self.config.nested_tolerance + 2.0 * se):
                 notes.append(
                     f"ELPD {diff:+.1f} ± {se:.1f} below its nested parent "
@@ -618,7 +352,7 @@ class FitBank:
                 )
                 self.log(f"    {' + '.join(key)} below its nested parent: rerun")
                 result, reruns = self._run(key, parent_key, 1), reruns + 1
-                loo = gdt.loo(result.datatree)
+                loo = stats.loo(result.datatree)
         notes += result.warnings
         self.fits[key], self.loos[key] = result, loo
         self.records[key] = FitRecord(key, result.converged, tuple(notes), reruns)
@@ -750,7 +484,7 @@ class FitBank:
                 step = max(1, -(-n_chain * n_draw // MM_DRAWS))
                 thin = slice(n_draw - 1 - (n_draw - 1) // step * step, None, step)
                 searches.append(
-                    moment_match_search(
+                    stats.moment_match_search(
                         part.run.samples[:, thin],
                         part.run.log_prob[:, thin],
                         part.log_lik[:, thin],
@@ -1224,8 +958,8 @@ def _score_round(
             )
             continue
         res = bank.get(key, parent=current)
-        gain, se = gdt.elpd_difference(loos[key]["elpd_i"], loos[current]["elpd_i"])
-        vs_base, vs_base_se = gdt.elpd_difference(loos[key]["elpd_i"], loos[base]["elpd_i"])
+        gain, se = stats.elpd_difference(loos[key]["elpd_i"], loos[current]["elpd_i"])
+        vs_base, vs_base_se = stats.elpd_difference(loos[key]["elpd_i"], loos[base]["elpd_i"])
         flagged = bool(loos[key]["n_bad_k"] or loos[current]["n_bad_k"])
         cand = Candidate(
             term=term,
@@ -1236,7 +970,7 @@ def _score_round(
             gain_se=se,
             gain_vs_baseline=vs_base,
             gain_vs_baseline_se=vs_base_se,
-            rmse_mm=rmse_mm(res),
+            rmse_mm=stats.rmse_mm(res.datatree),
             max_pareto_k=float(loos[key]["max_pareto_k"]),
             method="psis-loo (bad Pareto k, not decisive)" if flagged else "psis-loo",
             converged=bank.converged(key),
@@ -1256,8 +990,8 @@ def _score_round(
         )
         if decisive and cand.method != "psis-loo":
             (e_key, e_cur, e_base), method = pointwise((key, current, base))
-            gain, se = gdt.elpd_difference(e_key, e_cur)
-            vs_base, vs_base_se = gdt.elpd_difference(e_key, e_base)
+            gain, se = stats.elpd_difference(e_key, e_cur)
+            vs_base, vs_base_se = stats.elpd_difference(e_key, e_base)
             cand = replace(
                 cand,
                 elpd=float(np.sum(e_key)),
@@ -1290,11 +1024,11 @@ def _versus_chosen(
             out.append(c)
             continue
         other = terms_of((*current, c.term))
-        diff, se = gdt.elpd_difference(loos[key]["elpd_i"], loos[other]["elpd_i"])
+        diff, se = stats.elpd_difference(loos[key]["elpd_i"], loos[other]["elpd_i"])
         far = diff > 2.0 * cfg.min_gain and diff > 2.0 * cfg.se_factor * se
         if not far:
             (e_chosen, e_other), _ = pointwise((key, other))
-            diff, se = gdt.elpd_difference(e_chosen, e_other)
+            diff, se = stats.elpd_difference(e_chosen, e_other)
         out.append(replace(c, vs_selected=diff, vs_selected_se=se))
     return out
 
@@ -1343,8 +1077,8 @@ def diagnose(
     base = terms_of(cfg.baseline)
     log(f"Baseline: {' + '.join(base)}")
     baseline = bank.get(base)
-    before = residual_table(baseline)
-    z_thr = misfit_threshold(before, cfg.family_alpha)
+    before = stats.residual_table(baseline.datatree)
+    z_thr = stats.misfit_threshold(before, cfg.family_alpha)
     current, added, candidates = base, [], []
     misfit = before
     for round_no in range(1, cfg.max_added + 1):
@@ -1378,10 +1112,10 @@ def diagnose(
             )
         added.append(chosen.term)
         current = terms_of((*current, chosen.term))
-        misfit = residual_table(bank.fits[current])
+        misfit = stats.residual_table(bank.fits[current].datatree)
         log(f"  added {chosen.term}")
     selected = bank.fits[current]
-    after = residual_table(selected)
+    after = stats.residual_table(selected.datatree)
     record = _record(bank, pointwise, base, current, before, after, candidates, added, z_thr)
     return Diagnosis(
         baseline, selected, before, after, candidates, added, record, bank.fits, dict(bank.seconds)
@@ -1389,22 +1123,23 @@ def diagnose(
 
 
 def _interval(values: np.ndarray, ci_prob: float) -> list[float]:
-    q = [(1 - ci_prob) / 2, 0.5, 1 - (1 - ci_prob) / 2]
-    return [float(v) for v in np.nanquantile(values, q)]
+    """``[lo, median, hi]`` of the finite values (the order of ``diagnosis.json``)."""
+    med, lo, hi = stats.interval(values, ci_prob)
+    return [lo, med, hi]
 
 
 def _cells_json(residuals: pd.DataFrame, z_thr: float, only_misfit: bool) -> list[dict]:
     rows = residuals[residuals["z"].abs() > z_thr] if only_misfit else residuals
     out = []
     for r in rows.to_dict("records"):
-        cell = {k: (r[k] if k == "command" else float(r[k])) for k in CELL_KEYS if k in r}
+        cell = {k: (r[k] if k == "command" else float(r[k])) for k in stats.CELL_KEYS if k in r}
         cell.update(
             n=int(r["n"]),
             mean_residual_mm=float(r["mean_residual_mm"]),
             z=float(r["z"]),
             p_value=float(r["p_value"]),
             significant=bool(abs(r["z"]) > z_thr),
-            description=describe_cell(r),
+            description=stats.describe_cell(r),
         )
         out.append(cell)
     return out
@@ -1428,10 +1163,10 @@ def _record(
         cell_gain, cell_gain_se = 0.0, 0.0
     else:
         (e_cur, e_base), gain_method = pointwise((current, base))
-        gain, gain_se = gdt.elpd_difference(e_cur, e_base)
-        cell_cur, cell_base = _cell_loo(selected.datatree), _cell_loo(baseline.datatree)
-        cell_gain, cell_gain_se = gdt.elpd_difference(cell_cur["elpd_i"], cell_base["elpd_i"])
-    keys = [k for k in CELL_KEYS if k in before.columns]
+        gain, gain_se = stats.elpd_difference(e_cur, e_base)
+        cell_cur, cell_base = stats.cell_loo(selected.datatree), stats.cell_loo(baseline.datatree)
+        cell_gain, cell_gain_se = stats.elpd_difference(cell_cur["elpd_i"], cell_base["elpd_i"])
+    keys = [k for k in stats.CELL_KEYS if k in before.columns]
     merged = before.merge(after, on=keys, suffixes=("_before", "_after"))
     per_cell = [
         {
@@ -1446,7 +1181,7 @@ def _record(
     post = selected.datatree["posterior"].to_dataset()
     new_params = {
         p.name: {
-            f"{float(phi):g}": _interval(post[p.name].sel(phi=phi).values.ravel(), gdt.CI_PROB)
+            f"{float(phi):g}": _interval(post[p.name].sel(phi=phi).values.ravel(), stats.CI_PROB)
             for phi in post["phi"].values
         }
         for term in added
@@ -1472,7 +1207,7 @@ def _record(
             "terms": list(base),
             "elpd": float(bank.loos[base]["elpd"]),
             "elpd_se": float(bank.loos[base]["se"]),
-            "rmse_mm": rmse_mm(baseline),
+            "rmse_mm": stats.rmse_mm(baseline.datatree),
         },
         "misfit": _cells_json(before, z_thr, only_misfit=False),
         "n_misfit_cells": n_before,
@@ -1486,11 +1221,11 @@ def _record(
             "elpd_method": gain_method,
             "elpd_gain_cells": cell_gain,
             "elpd_gain_cells_se": cell_gain_se,
-            "rmse_before_mm": rmse_mm(baseline),
-            "rmse_after_mm": rmse_mm(selected),
+            "rmse_before_mm": stats.rmse_mm(baseline.datatree),
+            "rmse_after_mm": stats.rmse_mm(selected.datatree),
             "indistinguishable": indistinguishable,
             "parameters": new_params,
-            "interval": f"{gdt.CI_PROB:.0%} equal-tailed (5%, 50%, 95% quantiles)",
+            "interval": f"{stats.CI_PROB:.0%} equal-tailed (5%, 50%, 95% quantiles)",
             "per_cell": per_cell,
         },
         "residual_misfit": residual,

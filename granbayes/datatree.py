@@ -17,41 +17,20 @@ import arviz as az
 import numpy as np
 import pandas as pd
 import xarray as xr
-from arviz_stats.base import array_stats
+
+from .stats import by_ensemble
+from .stats._loo import _ignore_pareto_k_warning, _pit_tree
+from .stats._sbc import _sbc_dataset
 
 __all__ = [
     "build_datatree",
-    "by_ensemble",
-    "run_diagnostics",
-    "summary_table",
-    "loo",
-    "elpd_difference",
-    "compare",
-    "loo_pit",
-    "pit_uniformity",
     "plot_diagnostics",
     "plot_loo_pit",
     "plot_prior_posterior",
     "plot_sbc_ecdf",
-    "sbc_uniformity",
-    "write_datatree",
     "read_datatree",
-    "CI_PROB",
+    "write_datatree",
 ]
-
-#: Credible-interval probability reported everywhere (equal-tailed).
-CI_PROB = 0.90
-
-#: arviz-stats warns (UserWarning) whenever a Pareto k of PSIS-LOO exceeds its threshold.
-#: granbayes reports the k values itself (:func:`loo`: ``pareto_k``, ``max_pareto_k``,
-#: ``n_bad_k``; the fit report lists them, ``diagnose`` refits such jumps exactly), so this
-#: one warning is silenced where LOO is computed; every other warning surfaces.
-_PARETO_K_WARNING = "Estimated shape parameter of Pareto distribution is greater than"
-
-
-def _ignore_pareto_k_warning() -> None:
-    """Inside ``warnings.catch_warnings()``: silence only :data:`_PARETO_K_WARNING`."""
-    warnings.filterwarnings("ignore", message=_PARETO_K_WARNING, category=UserWarning)
 
 
 def build_datatree(
@@ -167,229 +146,6 @@ def _attr(value: object) -> object:
     return json.dumps(value)
 
 
-def run_diagnostics(dt: xr.DataTree) -> pd.DataFrame:
-    """Per sampler run of a fit: ensembles, steps, largest tau, R-hat, ESS, convergence.
-
-    Parameters
-    ----------
-    dt : xarray.DataTree
-        A fit's DataTree (reads only its ``runs`` attribute).
-
-    Returns
-    -------
-    pandas.DataFrame
-        One row per run; ``tau_max`` [steps] over ensembles and coordinates,
-        ``steps_over_tau`` the shortest post-burn-in chain in autocorrelation times,
-        ``rhat_max`` across ensembles, ``ess_min`` the smallest bulk or tail ESS.
-    """
-    rows = []
-    for run in json.loads(dt.attrs["runs"]):
-        tau = np.asarray(run["tau"], dtype=float)
-        burn = np.asarray(run["burn"], dtype=float)
-        tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else np.nan
-        per_ens = np.nanmax(tau, axis=1) if tau.ndim == 2 else np.array([tau_max])
-        rows.append(
-            {
-                "run": run["label"],
-                "n_ensembles": run["n_ensembles"],
-                "n_chains": run["n_chains"],
-                "n_steps": run["n_steps"],
-                "tau_max": tau_max,
-                "steps_over_tau": float(np.nanmin((run["n_steps"] - burn) / per_ens)),
-                "rhat_max": float(np.nanmax(run["rhat"])) if run["rhat"] else np.nan,
-                "ess_min": float(np.nanmin([*run["ess_bulk"], *run["ess_tail"]])),
-                "acceptance": run["acceptance"],
-                "converged": run["converged"],
-                "warnings": "; ".join(run["warnings"]),
-            }
-        )
-    return pd.DataFrame(rows)
-
-
-def summary_table(
-    dt: xr.DataTree, var_names: Sequence[str] | None = None, ci_prob: float = CI_PROB
-) -> pd.DataFrame:
-    """Posterior summary with equal-tailed intervals, R-hat and ESS.
-
-    ``r_hat`` is the rank-normalised split R-hat **across the independent ensembles** of
-    the parameter's run, the statistic of the stopping rule, read from the fit's ``runs``
-    record. ArviZ's own R-hat would take every walker as an independent chain; the walkers
-    of one ensemble move together (each proposal uses the others), which inflates it
-    without saying anything about convergence. Where a row has no recorded value (the
-    ``quadratic`` parametrisation, or a DataTree made elsewhere) ArviZ's value is kept.
-    ESS and MCSE are ArviZ's, over the walkers as chains (as the stopping rule's ESS).
-
-    Parameters
-    ----------
-    dt : xarray.DataTree
-        Result with a ``posterior`` group.
-    var_names : sequence of str, optional
-        Variables to summarise (default: all).
-    ci_prob : float
-        Probability of the equal-tailed interval (named in the column headers).
-
-    Returns
-    -------
-    pandas.DataFrame
-    """
-    table = az.summary(dt, var_names=var_names, ci_prob=ci_prob, ci_kind="eti")
-    for row, value in _ensemble_rhat(dt).items():
-        if row in table.index:
-            table.loc[row, "r_hat"] = value
-    return table
-
-
-def _ensemble_rhat(dt: xr.DataTree) -> dict[str, float]:
-    """R-hat across ensembles per summary row (``"k[0.592]"``) from the ``runs`` record."""
-    out: dict[str, float] = {}
-    for run in json.loads(dt.attrs.get("runs", "[]")):
-        label, rhat = run["label"], run.get("rhat") or []
-        if not label.startswith("phi=") or len(rhat) != len(run["coordinates"]):
-            continue
-        phi = label.removeprefix("phi=")
-        for name, value in zip(run["coordinates"], rhat, strict=True):
-            base = name.split("[")[0]
-            out[f"{base}[{phi}]"] = float(value)
-    return out
-
-
-def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
-    """PSIS-LOO of the ``height_mm`` log-likelihood.
-
-    Parameters
-    ----------
-    dt : xarray.DataTree or ndarray
-        A fit's DataTree, or a pointwise log-likelihood array of shape
-        ``(chain, draw, jump)`` (PSIS with relative efficiency 1: the kept draws are
-        thinned to roughly independent ones).
-
-    Returns
-    -------
-    dict
-        ``elpd``, ``se``, ``p`` (effective number of parameters), ``elpd_i`` and
-        ``pareto_k`` (ndarrays over jumps), ``max_pareto_k``, ``good_k`` (ArviZ's
-        sample-size dependent threshold ``min(1 - 1/log10(S), 0.7)`` for S draws, above
-        which PSIS is unreliable) and ``n_bad_k`` (jumps with k > ``good_k``).
-    """
-    if isinstance(dt, np.ndarray):
-        elpd_i, k, p_i = array_stats.loo(np.moveaxis(dt, -1, 0), chain_axis=-2, draw_axis=-1)
-        elpd_i, k = np.asarray(elpd_i, dtype=float), np.asarray(k, dtype=float)
-        good_k = _good_k(dt.shape[0] * dt.shape[1])
-        return {
-            "elpd": float(np.sum(elpd_i)),
-            "se": float(np.sqrt(elpd_i.size * np.var(elpd_i))),
-            "p": float(np.sum(p_i)),
-            "elpd_i": elpd_i,
-            "pareto_k": k,
-            "max_pareto_k": float(np.nanmax(k)),
-            "good_k": good_k,
-            "n_bad_k": int(np.sum(k > good_k)),
-        }
-    with warnings.catch_warnings():
-        _ignore_pareto_k_warning()  # the k values are returned
-        res = az.loo(dt, pointwise=True, var_name="height_mm")
-    k = np.asarray(res.pareto_k)
-    good_k = float(res.good_k)
-    return {
-        "elpd": float(res.elpd),
-        "se": float(res.se),
-        "p": float(res.p),
-        "elpd_i": np.asarray(res.elpd_i),
-        "pareto_k": k,
-        "max_pareto_k": float(np.nanmax(k)),
-        "good_k": good_k,
-        "n_bad_k": int(np.sum(k > good_k)),
-    }
-
-
-def _good_k(n_samples: int) -> float:
-    """ArviZ's Pareto k threshold for ``n_samples`` draws (as ``ELPDData.good_k``)."""
-    return float(min(1.0 - 1.0 / np.log10(n_samples), 0.7)) if n_samples > 1 else 0.7
-
-
-def elpd_difference(elpd_i_a: np.ndarray, elpd_i_b: np.ndarray) -> tuple[float, float]:
-    """ELPD difference ``a - b`` and its standard error from pointwise values.
-
-    ``se = sqrt(n var(elpd_i_a - elpd_i_b))`` (Vehtari, Gelman & Gabry 2017, eq. 24).
-
-    Parameters
-    ----------
-    elpd_i_a, elpd_i_b : ndarray
-        Pointwise ELPD [nats] of two models on the same jumps.
-
-    Returns
-    -------
-    tuple of float
-        The difference and its standard error [nats].
-    """
-    d = np.asarray(elpd_i_a, dtype=float) - np.asarray(elpd_i_b, dtype=float)
-    return float(np.sum(d)), float(np.sqrt(d.size * np.var(d)))
-
-
-def compare(models: Mapping[str, xr.DataTree]) -> pd.DataFrame:
-    """PSIS-LOO comparison (``arviz.compare``): ``elpd``, ``elpd_diff``, ``dse``, ``weight``.
-
-    Parameters
-    ----------
-    models : mapping of str to xarray.DataTree
-        Fits of the same jumps, by name.
-
-    Returns
-    -------
-    pandas.DataFrame
-    """
-    with warnings.catch_warnings():
-        _ignore_pareto_k_warning()  # flagged per model in the ``warning`` column
-        return az.compare(dict(models), var_name="height_mm")
-
-
-def by_ensemble(dt: xr.DataTree, group: str = "posterior") -> xr.Dataset:
-    """A fit's draws with one chain per independent *ensemble* instead of per walker.
-
-    The walkers of an ensemble move together (each proposal uses the others), so they are
-    not independent chains; the ensembles, started apart, are. Chain ``e`` holds ensemble
-    ``e``'s kept draws in step order, its walkers inside each step (the chains of the
-    stopping rule's R-hat, :mod:`granbayes.sampler`). Where the runs of a fit kept
-    different numbers of ensembles (a stuck ensemble dropped), the walkers stay the chains.
-
-    Parameters
-    ----------
-    dt : xarray.DataTree
-        A fit's DataTree (its ``runs`` attribute gives the ensembles).
-    group : str
-        The group to re-chunk.
-
-    Returns
-    -------
-    xarray.Dataset
-        Dimensions ``chain`` (ensembles), ``draw`` (walkers x draws), then the variables' own.
-    """
-    ds = dt[group].to_dataset()
-    runs = json.loads(dt.attrs.get("runs", "[]"))
-    shapes = {(r["n_ensembles"], r["n_chains"]) for r in runs}
-    n_chain = ds.sizes["chain"]
-    if len(shapes) != 1:
-        return ds
-    ((n_ens, n_chains),) = shapes
-    if n_chains != n_chain or n_chain % n_ens:
-        return ds
-    walkers, n_draw = n_chain // n_ens, ds.sizes["draw"]
-
-    def regroup(da: xr.DataArray) -> xr.DataArray:
-        v = da.transpose("chain", "draw", ...).values
-        v = v.reshape(n_ens, walkers, n_draw, *v.shape[2:]).swapaxes(1, 2)
-        other = [d for d in da.dims if d not in ("chain", "draw")]
-        return xr.DataArray(
-            v.reshape(n_ens, n_draw * walkers, *v.shape[3:]),
-            dims=("chain", "draw", *other),
-            coords={d: da.coords[d] for d in other if d in da.coords},
-            attrs=da.attrs,
-        )
-
-    out = xr.Dataset({name: regroup(da) for name, da in ds.data_vars.items()})
-    return out.assign_coords(chain=np.arange(n_ens), draw=np.arange(n_draw * walkers))
-
-
 def plot_diagnostics(
     dt: xr.DataTree, var_names: Sequence[str], out_dir: Path, stem: str = ""
 ) -> list[Path]:
@@ -426,55 +182,6 @@ def plot_diagnostics(
         plt.close("all")
         written.append(path)
     return written
-
-
-def loo_pit(dt: xr.DataTree) -> np.ndarray:
-    """LOO-PIT values of the measured heights (``arviz.loo_pit``, PSIS-LOO weights).
-
-    ``p(new height <= measured height | all other jumps)`` per jump: uniform on (0, 1) for
-    a calibrated predictive distribution. Needs the ``posterior_predictive``,
-    ``log_likelihood`` and ``observed_data`` groups (variable ``height_mm``).
-
-    Parameters
-    ----------
-    dt : xarray.DataTree
-        A fit.
-
-    Returns
-    -------
-    ndarray, shape (jump,)
-    """
-    with warnings.catch_warnings():
-        _ignore_pareto_k_warning()  # the PSIS weights' k values are reported by ``loo``
-        pit = az.loo_pit(_pit_tree(dt), var_names=["height_mm"])
-    return np.asarray(pit["height_mm"].values, dtype=float)
-
-
-def _pit_tree(dt: xr.DataTree) -> xr.DataTree:
-    """The groups LOO-PIT needs, with only ``height_mm`` in the predictive group."""
-    return xr.DataTree.from_dict(
-        {
-            "posterior": dt["posterior"].to_dataset(),
-            "log_likelihood": dt["log_likelihood"].to_dataset(),
-            "observed_data": dt["observed_data"].to_dataset(),
-            "posterior_predictive": dt["posterior_predictive"].to_dataset()[["height_mm"]],
-        }
-    )
-
-
-def pit_uniformity(pit: np.ndarray) -> float:
-    """p-value of ArviZ's uniformity test (``pot_c``, arviz-stats) of PIT values in (0, 1).
-
-    Parameters
-    ----------
-    pit : ndarray
-        PIT values.
-
-    Returns
-    -------
-    float
-    """
-    return float(sbc_uniformity({"pit": np.asarray(pit, dtype=float)[:, None]}, [0.0])["pit"][0])
 
 
 def _draw_uniform_band(fig, n: int, band_prob: float, seed: int) -> None:
@@ -647,36 +354,6 @@ def plot_prior_posterior(
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)
     return Path(path)
-
-
-def _sbc_dataset(pit: Mapping[str, np.ndarray], phis: Sequence[float]) -> xr.Dataset:
-    n = len(next(iter(pit.values())))
-    return xr.Dataset(
-        {name: (("replicate", "phi"), np.asarray(v, dtype=float)) for name, v in pit.items()},
-        coords={"replicate": np.arange(n), "phi": np.asarray(phis, dtype=float)},
-    )
-
-
-def sbc_uniformity(pit: Mapping[str, np.ndarray], phis: Sequence[float]) -> dict[str, np.ndarray]:
-    """ArviZ's uniformity test of SBC PIT values (``pot_c``, arviz-stats), per phi.
-
-    Parameters
-    ----------
-    pit : mapping of str to ndarray, shape (replicate, phi)
-        PIT values in (0, 1) (normalised ranks) per parameter.
-    phis : sequence of float
-        The volume fractions of the second axis.
-
-    Returns
-    -------
-    dict of str to ndarray, shape (phi,)
-        p-value per parameter and volume fraction.
-    """
-    import arviz_stats  # noqa: F401  (registers the ``azstats`` accessor)
-
-    ds = _sbc_dataset(pit, phis)
-    p_values, _, _ = ds.azstats.uniformity_test(dim=["replicate"], method="pot_c")
-    return {name: np.atleast_1d(p_values[name].values) for name in pit}
 
 
 def plot_sbc_ecdf(

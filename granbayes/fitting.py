@@ -30,6 +30,7 @@ import pandas as pd
 import xarray as xr
 
 from . import datatree as gdt
+from . import stats
 from ._deprecated import alias_getattr
 from ._provenance import environment
 from ._search import drive, nelder_mead
@@ -210,7 +211,7 @@ class FitResult:
 
     def diagnostics(self) -> pd.DataFrame:
         """Per run: autocorrelation times, R-hat, ESS, chain length, convergence."""
-        return gdt.run_diagnostics(self.datatree)
+        return stats.run_diagnostics(self.datatree)
 
     def log_predictive_density(self, table: pd.DataFrame) -> np.ndarray:
         """Log predictive density of jumps the fit has not seen [nats], one per row.
@@ -1057,7 +1058,7 @@ def _fit_attrs(
         "runs": [_run_record(p) for p in parts],
         "converged": all(p.run.converged for p in parts),
         "warnings": _warnings(parts, config),
-        "interval": f"{gdt.CI_PROB:.0%} equal-tailed",
+        "interval": f"{stats.CI_PROB:.0%} equal-tailed",
         "log_prior": "density of the reported parameter values, summed over runs",
     }
 
@@ -1135,7 +1136,7 @@ def compare_commands(
     *,
     seed: int = 0,
     priors: Mapping[str, Prior] | None = None,
-    ci_prob: float = gdt.CI_PROB,
+    ci_prob: float = stats.CI_PROB,
     details: bool | None = None,
     max_steps: int = 4000,
 ) -> CommandComparison:
@@ -1220,8 +1221,8 @@ def compare_commands(
         pos = {j: i for i, j in enumerate(part.jumps)}
         ll_shared = _to_shape(part.log_lik, n_chain, n_draw)[..., [pos[j] for j in order]]
         models = {"shared": ll_shared, "per_command": ll_sep}
-        loo = {k: gdt.loo(v) for k, v in models.items()}
-        diff, diff_se = gdt.elpd_difference(loo["shared"]["elpd_i"], loo["per_command"]["elpd_i"])
+        loo = {k: stats.loo(v) for k, v in models.items()}
+        diff, diff_se = stats.elpd_difference(loo["shared"]["elpd_i"], loo["per_command"]["elpd_i"])
         row = {
             "phi": phi,
             "elpd_shared": loo["shared"]["elpd"],
@@ -1233,7 +1234,7 @@ def compare_commands(
             "preferred": "shared" if diff > -2.0 * diff_se else "per_command",
             "per_command_converged": all(p.run.converged for _, p in sub_parts),
         }
-        lo_q, hi_q = (1 - ci_prob) / 2, 1 - (1 - ci_prob) / 2
+        lo_q, _, hi_q = stats.eti_probs(ci_prob)
         for pname in part.model.parameters:
             lows, highs = [], []
             for command, p in sub_parts:

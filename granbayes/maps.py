@@ -59,9 +59,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .analysis import interval
 from .experiment import Experiment
 from .simulator import simulate
+from .stats import interval
 
 __all__ = [
     "COMMANDS",

@@ -30,13 +30,13 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from .analysis import CI_PROB, interval, p_greater, posterior_draws
 from .commands import CommandProgram, build_command
 from .errors import InputError
 from .experiment import COMMAND_NAMES, CommandSettings, Experiment
 from .forces import PARAMETER_NAMES
 from .likelihood import SETTING_COLUMNS
 from .simulator import build_rows, simulate_rows
+from .stats import CI_PROB, eti_probs, interval, p_greater, posterior_draws
 
 __all__ = [
     "OptimumSearch",
@@ -426,7 +426,7 @@ def summarise_settings(
         out["expected_mm"] = np.where(n_ok > 0, np.nansum(heights_mm, axis=1) / n_ok, np.nan)
     q = np.full((len(out), 3), np.nan)
     q05 = np.full(len(out), np.nan)
-    lo_p, hi_p = (1 - CI_PROB) / 2, 1 - (1 - CI_PROB) / 2
+    lo_p, _, hi_p = eti_probs(CI_PROB)
     for i in np.flatnonzero(n_ok > 0):
         q[i] = np.quantile(heights_mm[i, finite[i]], [0.5, lo_p, hi_p])
         pred = predictive_mm[i][np.isfinite(predictive_mm[i])]

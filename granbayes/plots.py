@@ -574,7 +574,7 @@ def plot_heights_vs_phi(
     table : pandas.DataFrame
         The jumps (``freq_hz``, ``phi``, ``command``, ``height_mm`` [mm]): one dot each.
     stats : pandas.DataFrame
-        :func:`granbayes.analysis.cell_statistics`: cell mean with its standard error.
+        :func:`granbayes.stats.cell_statistics`: cell mean with its standard error.
     phi_c : float
         Critical packing [-].
     title : str
@@ -702,8 +702,8 @@ def plot_misfit_maps(m: MisfitMap, phi_c: float, title: str) -> Figure:
     -------
     matplotlib.figure.Figure
     """
-    from .analysis import interval
     from .maps import TOLERANCE_SE, valley_line
+    from .stats import interval
 
     fig = Figure(figsize=(15.5, 5.2), layout="constrained")
     axes = fig.subplots(1, 3, sharey=True)
@@ -822,8 +822,8 @@ def plot_valleys(maps: Sequence[MisfitMap], phi_c: float, title: str) -> Figure:
     -------
     matplotlib.figure.Figure
     """
-    from .analysis import interval
     from .maps import TOLERANCE_SE
+    from .stats import interval
 
     n = len(maps)
     fig = Figure(figsize=(max(8.0, 3.3 * n), 7.6), layout="constrained")
@@ -910,7 +910,7 @@ def plot_optimum_vs_frequency(
     title : str
         Figure title.
     """
-    from .analysis import CI_PROB
+    from .stats import CI_PROB
 
     fig, axes, legend_ax = panel_grid(len(results))
     for ax, res in zip(axes, results, strict=True):
@@ -1068,7 +1068,7 @@ def plot_optimum_vs_phi(results: Sequence[OptimumSearch], phi_c: float, title: s
     title : str
         Figure title.
     """
-    from .analysis import CI_PROB
+    from .stats import CI_PROB
 
     fig = Figure(figsize=(11.5, 4.6), layout="constrained")
     ax_e, ax_q = fig.subplots(1, 2, sharey=True)

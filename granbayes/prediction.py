@@ -37,14 +37,13 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from . import stats
 from .experiment import COMMAND_NAMES
 from .likelihood import SETTING_COLUMNS, JumpModel, Observations
 from .saved import SavedFit, as_saved_fit
 
 __all__ = ["Prediction", "predict"]
 
-#: Default credible-interval probability (equal-tailed), as everywhere in granbayes.
-CI_PROB = 0.90
 
 #: Tolerance when matching a requested volume fraction to a fitted one [-].
 PHI_TOLERANCE = 1e-9
@@ -199,7 +198,7 @@ def _sigma(model: JumpModel, u: np.ndarray, phis: np.ndarray) -> tuple[np.ndarra
 
 
 def _summary(values: np.ndarray, ci_prob: float, prefix: str) -> dict[str, np.ndarray]:
-    q = [(1 - ci_prob) / 2, 0.5, 1 - (1 - ci_prob) / 2]
+    q = stats.eti_probs(ci_prob)
     out = {f"{prefix}_mean": np.full(values.shape[1], np.nan)}
     out.update({f"{prefix}_{k}": np.full(values.shape[1], np.nan) for k in ("median", "lo", "hi")})
     for j in range(values.shape[1]):
@@ -221,7 +220,7 @@ def predict(
     delay_ms: float | Sequence[float] | None = None,
     settle_periods: float | Sequence[float] | None = None,
     n_draws: int | None = 1000,
-    ci_prob: float = CI_PROB,
+    ci_prob: float = stats.CI_PROB,
     rng: np.random.Generator | int = 0,
 ) -> Prediction:
     """Posterior predictive jump heights at new settings (module docstring).

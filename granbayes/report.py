@@ -19,7 +19,7 @@ import xarray as xr
 from matplotlib.figure import Figure
 
 from . import datatree as gdt
-from .criticism import identifiability_table
+from . import stats
 from .experiment import COMMAND_NAMES
 from .forces import parameter
 
@@ -168,7 +168,7 @@ def plot_corner(
     return fig
 
 
-def plot_predictive(dt: xr.DataTree, ci_prob: float = gdt.CI_PROB) -> Figure:
+def plot_predictive(dt: xr.DataTree, ci_prob: float = stats.CI_PROB) -> Figure:
     """Jump height vs volume fraction per command: data and posterior predictive bands.
 
     One panel per command; one colour per actuation frequency. Points: measured jumps;
@@ -193,7 +193,7 @@ def plot_predictive(dt: xr.DataTree, ci_prob: float = gdt.CI_PROB) -> Figure:
     freq = obs["freq_hz"].values if "freq_hz" in obs.coords else np.zeros(len(phi))
     commands = [c for c in COMMAND_NAMES if c in set(command)]
     freqs = np.unique(freq)
-    q = [(1 - ci_prob) / 2, 0.5, 1 - (1 - ci_prob) / 2]
+    q = stats.eti_probs(ci_prob)
     fig = Figure(figsize=(3.3 * len(commands), 3.6), layout="constrained")
     axes = fig.subplots(1, len(commands), sharey=True, squeeze=False)[0]
     rep = pp["height_mm"].values.reshape(-1, len(phi))
@@ -248,7 +248,7 @@ def plot_parameters_vs_phi(
     var_names: list[str],
     phi_c: float,
     truth: Mapping[float, Mapping[str, float]] | None = None,
-    ci_prob: float = gdt.CI_PROB,
+    ci_prob: float = stats.CI_PROB,
 ) -> Figure:
     """Posterior median and ``ci_prob`` interval of each parameter against ``phi - phi_c``.
 
@@ -275,7 +275,7 @@ def plot_parameters_vs_phi(
     x = phis - phi_c
     fig = Figure(figsize=(3.4 * len(names), 3.2), layout="constrained")
     axes = fig.subplots(1, len(names), squeeze=False)[0]
-    q = [(1 - ci_prob) / 2, 0.5, 1 - (1 - ci_prob) / 2]
+    q = stats.eti_probs(ci_prob)
     for ax, n in zip(axes, names, strict=True):
         v = post[n].values.reshape(-1, len(phis))
         lo, med, hi = np.nanquantile(v, q, axis=0)
@@ -370,15 +370,15 @@ def write_fit_report(
     force_names = list(json.loads(dt.attrs["parameters"]))
     names = [*force_names, "sigma_mm"]
     fit_warnings = json.loads(dt.attrs.get("warnings", "[]"))
-    summary = gdt.summary_table(dt, var_names=names).reset_index(names="parameter")
+    summary = stats.summary_table(dt, var_names=names).reset_index(names="parameter")
     if truth:
         summary["truth"] = [_truth_of(truth, label) for label in summary["parameter"]]
     summary.to_csv(out / "summary.csv", index=False)
-    diag = gdt.run_diagnostics(dt)
+    diag = stats.run_diagnostics(dt)
     diag.to_csv(out / "diagnostics.csv", index=False)
-    loo = gdt.loo(dt)
-    pit = gdt.loo_pit(dt)
-    pit_p = gdt.pit_uniformity(pit) if np.all(np.isfinite(pit)) else float("nan")
+    loo = stats.loo(dt)
+    pit = stats.loo_pit(dt)
+    pit_p = stats.pit_uniformity(pit) if np.all(np.isfinite(pit)) else float("nan")
     phi_c = json.loads(dt.attrs["experiment"])["phi_c"]
     lines = [
         "# granbayes fit",
@@ -387,7 +387,7 @@ def write_fit_report(
         f"- data: {dt.attrs.get('data_source', '')} (sha256 {dt.attrs['data_sha256'][:12]}…)",
         f"- terms: {', '.join(config['terms'])}; parametrisation across φ: "
         f"{config['phi_mode']}; noise: {config['noise']}",
-        f"- seed: {dt.attrs['seed']}; intervals: {gdt.CI_PROB:.0%} equal-tailed (ETI)",
+        f"- seed: {dt.attrs['seed']}; intervals: {stats.CI_PROB:.0%} equal-tailed (ETI)",
         f"- PSIS-LOO: elpd = {loo['elpd']:.1f} ± {loo['se']:.1f}, p_loo = {loo['p']:.1f}, "
         f"max Pareto k = {loo['max_pareto_k']:.2f} ({loo['n_bad_k']} jumps with k > "
         f"{loo['good_k']:.2f})",
@@ -418,7 +418,7 @@ def write_fit_report(
         ),
         "",
     ]
-    ident = identifiability_table(dt, names)
+    ident = stats.identifiability_table(dt, names)
     if len(ident):
         ident.to_csv(out / "identifiability.csv", index=False)
         written.append(out / "identifiability.csv")
@@ -450,7 +450,7 @@ def write_fit_report(
             "separate parameters per command, by PSIS-LOO (`elpd_diff` = shared − "
             "per-command; the shared law is preferred unless per-command is better by more "
             "than 2 SE). `*_intervals_overlap`: whether the per-command "
-            f"{gdt.CI_PROB:.0%} intervals of a parameter share a common value.",
+            f"{stats.CI_PROB:.0%} intervals of a parameter share a common value.",
             "",
             markdown_table(uniqueness),
             "",

@@ -28,6 +28,7 @@ import pandas as pd
 import xarray as xr
 
 from . import datatree as gdt
+from . import stats
 from .errors import InputError
 from .experiment import CommandSettings, Experiment, Robot
 from .fitting import FitSettings, part_models
@@ -183,11 +184,11 @@ class SavedFit:
 
     def diagnostics(self) -> pd.DataFrame:
         """Per run: autocorrelation times, R-hat, ESS, chain length, convergence."""
-        return gdt.run_diagnostics(self.datatree)
+        return stats.run_diagnostics(self.datatree)
 
     def loo(self) -> dict[str, object]:
         """PSIS-LOO of the fit (:func:`granbayes.datatree.loo`)."""
-        return gdt.loo(self.datatree)
+        return stats.loo(self.datatree)
 
     # ------------------------------------------------------------------------------------
     def models(self) -> dict[str, JumpModel]:

@@ -34,9 +34,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from . import datatree as gdt
+from . import stats
 from ._files import atomic_path, write_json, write_text
 from ._provenance import machine, package_versions
 from .campaign import CampaignResult, Task, run_campaign, spawn_seeds
@@ -46,17 +46,13 @@ from .forces import TERMS
 from .priors import Prior, default_priors
 
 __all__ = [
-    "COVERAGE_LEVELS",
     "SBCResult",
     "draw_replicate",
     "rank_draws",
     "replicate_ranks",
     "run_sbc",
-    "summarize_ranks",
 ]
 
-#: Central posterior intervals whose coverage is reported.
-COVERAGE_LEVELS: tuple[float, ...] = (0.5, 0.9)
 
 #: Prior draws tried per volume fraction for a law whose jumps all finish.
 _MAX_PRIOR_TRIES = 200
@@ -255,92 +251,6 @@ def replicate_ranks(
 # ----------------------------------------------------------------------------------------
 # Summary
 # ----------------------------------------------------------------------------------------
-def _chi_square(ranks: np.ndarray, n_draws: int) -> dict[str, Any]:
-    """Chi-square test of uniformity of ranks ``0..n_draws`` in about n/5 bins (2-20)."""
-    n = len(ranks)
-    bins = int(min(max(n // 5, 2), 20, n_draws + 1))
-    which = np.arange(n_draws + 1) * bins // (n_draws + 1)  # bin of every possible rank
-    expected = np.bincount(which, minlength=bins) / (n_draws + 1) * n
-    observed = np.bincount(which[ranks], minlength=bins)
-    statistic, p_value = stats.chisquare(observed, expected)
-    return {"bins": bins, "statistic": float(statistic), "p_value": float(p_value)}
-
-
-def _coverage(ranks: np.ndarray, n_draws: int, level: float) -> dict[str, float]:
-    """How often the truth lies in the central ``level`` interval of the draws."""
-    n = len(ranks)
-    lo, hi = (1.0 - level) / 2.0 * n_draws, (1.0 + level) / 2.0 * n_draws
-    observed = float(np.mean((ranks >= lo) & (ranks <= hi)))
-    possible = np.arange(n_draws + 1)
-    nominal = float(np.mean((possible >= lo) & (possible <= hi)))  # under uniform ranks
-    return {
-        "observed": observed,
-        "se": math.sqrt(observed * (1.0 - observed) / n),
-        "nominal": nominal,
-        "nominal_se": math.sqrt(nominal * (1.0 - nominal) / n),
-    }
-
-
-def _pit(ranks: pd.DataFrame) -> tuple[dict[str, np.ndarray], list[float]]:
-    """Normalised ranks ``(rank + 0.5) / (n_draws + 1)``: parameter -> (replicate, phi)."""
-    phis = sorted(ranks["phi"].unique())
-    n_draws = int(ranks["n_draws"].iloc[0])
-    pit = {}
-    for name in dict.fromkeys(ranks["parameter"]):
-        wide = ranks[ranks["parameter"] == name].pivot_table(
-            index="replicate", columns="phi", values="rank"
-        )
-        wide = wide.reindex(columns=phis).dropna()
-        pit[name] = (wide.to_numpy(float) + 0.5) / (n_draws + 1)
-    return pit, phis
-
-
-def summarize_ranks(ranks: pd.DataFrame) -> list[dict[str, Any]]:
-    """Per parameter and volume fraction: uniformity tests and interval coverage.
-
-    Parameters
-    ----------
-    ranks : pandas.DataFrame
-        ``ranks.csv`` rows (``parameter``, ``phi``, ``rank``, ``n_draws``, ``converged``).
-
-    Returns
-    -------
-    list of dict
-        ``parameter``, ``phi``, ``n_replicates``, ``n_draws``, ``mean_normalised_rank``
-        (0.5 if calibrated), ``uniformity`` (chi-square on binned ranks: ``bins``,
-        ``statistic``, ``p_value``; and ArviZ's ``pot_c_p_value``), ``coverage`` (per
-        level ``"50%"``, ``"90%"``: ``observed`` with its binomial ``se``, and the
-        ``nominal`` value expected for uniform ranks with its ``nominal_se``), and
-        ``fraction_converged``.
-    """
-    if ranks.empty:
-        return []
-    if ranks["n_draws"].nunique() != 1:
-        raise ValueError("ranks must all be among the same number of draws (n_draws)")
-    n_draws = int(ranks["n_draws"].iloc[0])
-    pit, phis = _pit(ranks)
-    pot_c = gdt.sbc_uniformity(pit, phis) if all(len(v) >= 2 for v in pit.values()) else {}
-    out = []
-    for (name, phi), group in ranks.groupby(["parameter", "phi"], sort=False):
-        r = group["rank"].to_numpy(int)
-        uniformity = _chi_square(r, n_draws)
-        p_arviz = pot_c.get(name)
-        uniformity["pot_c_p_value"] = (
-            None if p_arviz is None else float(p_arviz[phis.index(float(phi))])
-        )
-        out.append(
-            {
-                "parameter": str(name),
-                "phi": float(phi),
-                "n_replicates": len(r),
-                "n_draws": n_draws,
-                "mean_normalised_rank": float(np.mean(r) / n_draws),
-                "uniformity": uniformity,
-                "coverage": {f"{lv:.0%}": _coverage(r, n_draws, lv) for lv in COVERAGE_LEVELS},
-                "fraction_converged": float(group["converged"].astype(bool).mean()),
-            }
-        )
-    return out
 
 
 def _summary_markdown(summary: Mapping[str, Any]) -> str:
@@ -561,12 +471,12 @@ def _write_outputs(
         "pot_c: ArviZ's uniformity test (arviz-stats)",
         "coverage": "fraction of replicates whose true value lies in the central "
         "interval of the ranked draws; se = sqrt(c (1 - c) / n)",
-        "parameters": summarize_ranks(ranks) if len(ranks) else [],
+        "parameters": stats.summarize_ranks(ranks) if len(ranks) else [],
     }
     write_json(work / "summary.json", summary)
     write_text(work / "summary.md", _summary_markdown(summary))
     if len(ranks):
-        pit, phis = _pit(ranks)
+        pit, phis = stats.normalised_ranks(ranks)
         if all(len(v) >= 2 for v in pit.values()):
             with atomic_path(work / "sbc_ecdf.png") as tmp:
                 gdt.plot_sbc_ecdf(

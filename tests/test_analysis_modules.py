@@ -29,6 +29,7 @@ from granbayes import (
     simulate_trajectory,
 )
 from granbayes import analysis as an
+from granbayes import stats as gstats
 
 PHI_C = 0.612
 SYNTHETIC = "SYNTHETIC (tests/test_analysis_modules.py)"
@@ -78,21 +79,21 @@ def synthetic_jumps(rng: np.random.Generator, law: dict[str, float], n: int = 4)
 # ---------------------------------------------------------------------------------------
 def test_interval_is_the_median_and_equal_tailed_quantiles_ignoring_nan() -> None:
     values = np.r_[np.arange(101.0), np.nan]
-    assert an.interval(values) == pytest.approx((50.0, 5.0, 95.0))
-    assert an.interval(values, 0.5) == pytest.approx((50.0, 25.0, 75.0))
-    assert all(math.isnan(v) for v in an.interval([np.nan, np.inf]))
-    assert an.fmt_triple(1.234, 1.0, 2.0, ".2f") == "1.23 [1.00, 2.00]"
-    assert an.fmt_interval(values, 2) == "50 [5, 95]"
+    assert gstats.interval(values) == pytest.approx((50.0, 5.0, 95.0))
+    assert gstats.interval(values, 0.5) == pytest.approx((50.0, 25.0, 75.0))
+    assert all(math.isnan(v) for v in gstats.interval([np.nan, np.inf]))
+    assert gstats.fmt_triple(1.234, 1.0, 2.0, ".2f") == "1.23 [1.00, 2.00]"
+    assert gstats.fmt_interval(values, 2) == "50 [5, 95]"
 
 
 def test_posterior_draws_are_joint(rng: np.random.Generator) -> None:
     """The same (chain, draw) pair for every name: sigma_mm follows k draw by draw."""
     dt = posterior_tree(rng)
     dt["posterior"]["sigma_mm"] = dt.posterior["k"] / 1000.0
-    draws = an.posterior_draws(dt, 0.6321, ["k", "sigma_mm"], 50, np.random.default_rng(1))
+    draws = gstats.posterior_draws(dt, 0.6321, ["k", "sigma_mm"], 50, np.random.default_rng(1))
     assert draws["k"].shape == (50,)
     np.testing.assert_allclose(draws["sigma_mm"], draws["k"] / 1000.0)
-    again = an.posterior_draws(dt, 0.632, ["k"], 50, np.random.default_rng(1))
+    again = gstats.posterior_draws(dt, 0.632, ["k"], 50, np.random.default_rng(1))
     np.testing.assert_array_equal(again["k"], draws["k"])  # nearest phi, seeded
 
 
@@ -106,16 +107,16 @@ def test_cell_experiment_applies_the_row_settings_and_skips_nan() -> None:
 
 def test_paired_probability_and_correlations() -> None:
     a = np.array([1.0, 2.0, np.nan, 4.0])
-    assert an.p_greater(a, np.array([0.0, 3.0, 1.0, 3.0])) == pytest.approx(2 / 3)
-    assert math.isnan(an.p_greater([np.nan], [1.0]))
+    assert gstats.p_greater(a, np.array([0.0, 3.0, 1.0, 3.0])) == pytest.approx(2 / 3)
+    assert math.isnan(gstats.p_greater([np.nan], [1.0]))
     x = np.array([0.1, 0.5, 0.9, 1.3])
     draws = np.vstack([x, x + 0.1, x[::-1]])
-    r = an.correlation(x, 2 * x + 1, draws, np.vstack([2 * x, 3 * x, x]))
+    r = gstats.correlation(x, 2 * x + 1, draws, np.vstack([2 * x, 3 * x, x]))
     assert r["point"] == pytest.approx(1.0)
     assert r["spearman"]["point"] == pytest.approx(1.0)
     assert r["p_positive"] == pytest.approx(2 / 3)  # the reversed draw correlates negatively
     assert r["n_draws"] == 3
-    assert math.isnan(an.pearson_rows(np.ones((1, 4)), x[None])[0])  # no spread: undefined
+    assert math.isnan(gstats.pearson_rows(np.ones((1, 4)), x[None])[0])  # no spread: undefined
 
 
 def test_cell_statistics_match_a_groupby(rng: np.random.Generator) -> None:
@@ -127,7 +128,7 @@ def test_cell_statistics_match_a_groupby(rng: np.random.Generator) -> None:
             "height_mm": rng.normal(50.0, 5.0, 12),
         }
     )
-    stats = an.cell_statistics(table)
+    stats = gstats.cell_statistics(table)
     g = table.groupby(["freq_hz", "phi", "command"])["height_mm"]
     got = stats.set_index(["freq_hz", "phi", "command"])
     pd.testing.assert_series_equal(got["mean_mm"].sort_index(), g.mean(), check_names=False)
@@ -137,12 +138,12 @@ def test_cell_statistics_match_a_groupby(rng: np.random.Generator) -> None:
 
 def test_mean_discrepancy_and_posterior_intervals(rng: np.random.Generator) -> None:
     sim = np.full(4000, 50.0)
-    med, lo, hi, z = an.mean_discrepancy(56.0, 4, sim, np.full(4000, 6.0), rng)
+    med, lo, hi, z = gstats.mean_discrepancy(56.0, 4, sim, np.full(4000, 6.0), rng)
     assert med == pytest.approx(6.0, abs=0.15)  # predictive sd of the mean: 6 / 2 = 3
     assert (lo, hi) == pytest.approx((6.0 - 1.645 * 3, 6.0 + 1.645 * 3), abs=0.3)
     assert z == pytest.approx(2.0, abs=0.05)
     dt = posterior_tree(rng)
-    table = an.posterior_intervals(dt, ["k", "c_d"], [0.592, 0.632])
+    table = gstats.posterior_intervals(dt, ["k", "c_d"], [0.592, 0.632])
     assert list(table.columns) == ["phi", "parameter", "median", "lo", "hi"]
     assert list(table["parameter"]) == ["k", "k", "c_d", "c_d"]
     assert (table["lo"] < table["median"]).all() and (table["median"] < table["hi"]).all()
@@ -345,7 +346,7 @@ def test_rigid_floor_sweep_power_and_refined_optimum() -> None:
 # ---------------------------------------------------------------------------------------
 def test_heights_kappa_and_coefficient_figures(rng: np.random.Generator) -> None:
     table = synthetic_jumps(rng, {"k": 3000.0, "c_d": 20.0}, n=3)
-    stats = an.cell_statistics(table)
+    stats = gstats.cell_statistics(table)
     fig = plots.plot_heights_vs_phi(table, stats, PHI_C, "heights, SYNTHETIC")
     assert len(fig.axes) == 2  # one panel per frequency
     cells = stats.assign(

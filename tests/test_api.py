@@ -23,9 +23,8 @@ import xarray as xr
 
 import granbayes as gb
 from granbayes.cli import EXIT_INPUT, EXIT_OK, main
-from granbayes.criticism import IDENTIFIABILITY_LEVELS, identifiability_table
-from granbayes.datatree import loo, loo_pit
 from granbayes.report import write_fit_report
+from granbayes.stats import IDENTIFIABILITY_LEVELS, identifiability_table, loo, loo_pit
 from granbayes.synthetic import write_experiment
 from granbayes.testing import synthetic_jumps
 
@@ -156,7 +155,7 @@ result.save("posterior.nc")                          # the DataTree, as netCDF
 
 saved = gb.load_fit("posterior.nc")                  # SavedFit: datatree, config, priors, ...
 saved.datatree.posterior["k"]                        # k [N/m] over (chain, draw, phi)
-gb.residual_table(saved)                             # misfit per command x phi x setting
+gb.residual_table(saved.datatree)                    # misfit per command x phi x setting
 pred = gb.predict(saved, "stutter", 0.612, freq_hz=[8, 12], rng=1)
 pred.table[["freq_hz", "height_mm_median", "height_mm_lo", "height_mm_hi"]]
 """
@@ -229,7 +228,9 @@ def test_saved_models_reproduce_the_stored_log_likelihood(
 def test_saved_fit_serves_residuals_and_loo(per_phi: tuple[gb.FitResult, Path]) -> None:
     result, out = per_phi
     saved = gb.load_fit(out / "posterior.nc")
-    pd.testing.assert_frame_equal(gb.residual_table(saved), gb.residual_table(result))
+    pd.testing.assert_frame_equal(
+        gb.residual_table(saved.datatree), gb.residual_table(result.datatree)
+    )
     assert loo(saved.datatree)["elpd"] == pytest.approx(loo(result.datatree)["elpd"])
     assert saved.loo()["elpd"] == pytest.approx(loo(result.datatree)["elpd"])
 

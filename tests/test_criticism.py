@@ -18,22 +18,20 @@ import pytest
 from scipy import stats
 
 import granbayes.datatree as gdt
+import granbayes.stats as gstats
 from granbayes import Experiment
 from granbayes.cli import EXIT_UNCONVERGED, main
 from granbayes.criticism import (
-    CELL_KEYS,
     Candidate,
     DiagnoseSettings,
     decide,
-    describe_cell,
     diagnose,
     distinguished,
-    misfit_threshold,
-    residual_table,
     rivals,
     verdict,
 )
 from granbayes.report import write_diagnosis_report
+from granbayes.stats import CELL_KEYS, describe_cell, misfit_threshold, residual_table
 from granbayes.synthetic import write_experiment
 from granbayes.testing import QUICK_SAMPLER, synthetic_jumps
 
@@ -110,8 +108,7 @@ def drag_report(drag_case, tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_residual_table_cells_and_statistics(drag_case) -> None:
     """One row per cell of every setting; residual = observed - simulated mean; worst first."""
     table, config, d, _ = drag_case
-    res = residual_table(d.baseline)
-    pd.testing.assert_frame_equal(res, residual_table(d.baseline.datatree))
+    res = residual_table(d.baseline.datatree)
     pd.testing.assert_frame_equal(res, d.residuals_before)
     assert set(CELL_KEYS) <= set(res.columns)
     assert len(res) == table.groupby(list(CELL_KEYS)).ngroups
@@ -127,7 +124,7 @@ def test_residual_table_cells_and_statistics(drag_case) -> None:
 def test_lack_of_fit_z_uses_the_measured_scatter(drag_case) -> None:
     """z = residual / sqrt(s^2/n + var_post), s^2 pooled within cells at the same phi."""
     table, _, d, _ = drag_case
-    res = residual_table(d.baseline)
+    res = residual_table(d.baseline.datatree)
     row = res.iloc[0]
     at_phi = table[table["phi"] == row["phi"]]
     groups = at_phi.groupby([k for k in CELL_KEYS if k != "phi"])["height_mm"]
@@ -547,7 +544,7 @@ def test_diagnosis_json_contract(drag_case, drag_report: Path) -> None:
         assert set(CELL_KEYS) <= set(cell)
     # residual misfit: the selected law's significant cells (none here)
     assert isinstance(rec["residual_misfit"], list)
-    after = residual_table(d.selected)
+    after = residual_table(d.selected.datatree)
     assert len(rec["residual_misfit"]) == int((after["z"].abs() > z_thr).sum()) == 0
     # the fits the decision rests on
     assert [f["terms"] for f in rec["fits"]] == [["depth"], ["depth", "drag"]]
@@ -763,9 +760,9 @@ def test_drag_and_viscous_compared_paired_and_ties_reported(tmp_path: Path) -> N
     chosen = d.added[0]
     round1 = [c for c in d.candidates if c.round == 1]
     (other,) = [c for c in round1 if c.term != chosen]
-    loo = {t: gdt.loo(d.fits[("depth", t)].datatree)["elpd_i"] for t in ("drag", "viscous")}
+    loo = {t: gstats.loo(d.fits[("depth", t)].datatree)["elpd_i"] for t in ("drag", "viscous")}
     if "psis-loo" == other.method:
-        diff, se = gdt.elpd_difference(loo[chosen], loo[other.term])
+        diff, se = gstats.elpd_difference(loo[chosen], loo[other.term])
         assert (other.vs_selected, other.vs_selected_se) == pytest.approx((diff, se))
     assert other.vs_selected >= 0.0 or not other.converged  # the chosen one scores best
     expected = [

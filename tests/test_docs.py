@@ -16,7 +16,7 @@ import importlib.util
 import re
 from pathlib import Path
 
-from granbayes import criticism
+from granbayes import criticism, stats
 from granbayes.cli import SUBCOMMANDS
 from granbayes.priors import load_priors
 
@@ -86,7 +86,7 @@ def test_diagnosis_fields_are_documented() -> None:
     text = (DOCS / "data-format.md").read_text(encoding="utf-8")
     dummy = {f.name: 0 for f in dataclasses.fields(criticism.Candidate)} | {"added": ()}
     candidate = criticism.Candidate(**dummy).to_json()
-    keys = _record_keys() | set(candidate) | {"versions", "machine"} | set(criticism.CELL_KEYS)
+    keys = _record_keys() | set(candidate) | {"versions", "machine"} | set(stats.CELL_KEYS)
     keys |= {"reruns"}
     # named in code style (`key`, `a.key`, `key[]`) or as a JSON key of the contract ("key")
     missing = sorted(k for k in keys if not re.search(rf"[`\".]{k}[`\"\[]", text))

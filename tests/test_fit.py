@@ -23,10 +23,10 @@ import pytest
 import xarray as xr
 from scipy import stats
 
-import granbayes.datatree as gdt
 import granbayes.fitting as gfit
 import granbayes.report as greport
 import granbayes.sampler as gsampler
+import granbayes.stats as gstats
 from granbayes import (
     COMMAND_NAMES,
     Experiment,
@@ -496,7 +496,7 @@ def test_datatree_round_trip(recovery_fit: FitResult, one_phi: Path, tmp_path: P
     assert config["sampler"]["n_walkers"] == SMALL.n_walkers
     assert config["sampler"]["n_ensembles"] == SMALL.n_ensembles
     assert json.loads(back.attrs["converged"]) is True
-    pd.testing.assert_frame_equal(gdt.run_diagnostics(back), recovery_fit.diagnostics())
+    pd.testing.assert_frame_equal(gstats.run_diagnostics(back), recovery_fit.diagnostics())
     experiment, table = load_folder(one_phi)
     assert back.attrs["data_sha256"] == data_hash(experiment, table)
     assert len(back.attrs["data_sha256"]) == 64
@@ -554,8 +554,8 @@ def test_warm_start_from_a_nested_parent(
     )
     np.testing.assert_allclose(child.datatree.log_prior["log_prior"].values, density, rtol=1e-10)
     # the extension ends close to (here: not far below) its parent
-    parent_loo, child_loo = gdt.loo(recovery_fit.datatree), gdt.loo(child.datatree)
-    diff, se = gdt.elpd_difference(child_loo["elpd_i"], parent_loo["elpd_i"])
+    parent_loo, child_loo = gstats.loo(recovery_fit.datatree), gstats.loo(child.datatree)
+    diff, se = gstats.elpd_difference(child_loo["elpd_i"], parent_loo["elpd_i"])
     assert diff > -(DiagnoseSettings().nested_tolerance + 2.0 * se), (diff, se)
 
 

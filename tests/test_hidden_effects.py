@@ -37,8 +37,7 @@ import functools
 import numpy as np
 import pytest
 
-from granbayes import CommandSettings, Experiment, Robot
-from granbayes import datatree as gdt
+from granbayes import CommandSettings, Experiment, Robot, stats
 from granbayes.calibration import OUT_OF_LIBRARY, make_case
 from granbayes.criticism import DiagnoseSettings, diagnose
 from granbayes.forces import terms_of
@@ -140,8 +139,8 @@ def test_two_frequencies_separate_drag_from_viscous(truth: str, rival: str) -> N
         print(f"{rival} screened out: {first[rival].screen_gain:.1f} vs {first[truth].gain:.1f}")
         assert first[rival].screen_gain < first[truth].gain
         return
-    loo = {t: gdt.loo(d.fits[terms_of(("depth", t))].datatree) for t in (truth, rival)}
-    margin, se = gdt.elpd_difference(loo[truth]["elpd_i"], loo[rival]["elpd_i"])
+    loo = {t: stats.loo(d.fits[terms_of(("depth", t))].datatree) for t in (truth, rival)}
+    margin, se = stats.elpd_difference(loo[truth]["elpd_i"], loo[rival]["elpd_i"])
     print(f"{truth} vs {rival}: elpd margin {margin:.1f} +- {se:.1f}")
     assert margin > se
     assert np.isfinite(first[rival].elpd)

@@ -15,7 +15,7 @@ import pytest
 import xarray as xr
 from arviz_stats import loo, loo_moment_match
 
-from granbayes.moment_matching import moment_match
+from granbayes.stats import moment_match
 
 Y = np.array([0.3, -0.8, 1.1, 0.2, -0.4, 0.9, -1.3, 0.5, 0.1, -0.2,
               0.7, -0.6, 0.4, -1.0, 0.0, 0.8, -0.3, 0.6, 12.0, -11.0])  # fmt: skip

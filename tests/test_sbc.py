@@ -28,7 +28,8 @@ from granbayes import load_experiment, load_jumps
 from granbayes.cli import EXIT_INPUT, EXIT_OK, main
 from granbayes.fitting import FitSettings
 from granbayes.sampler import SamplerSettings
-from granbayes.sbc import run_sbc, summarize_ranks
+from granbayes.sbc import run_sbc
+from granbayes.stats import summarize_ranks
 
 BIN = Path(sys.executable).parent
 #: Capped fits for machinery tests (not converged; not a calibration study).

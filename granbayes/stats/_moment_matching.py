@@ -204,7 +204,25 @@ def moment_match_search(
 
     It receives ``(log_prob, log_lik)`` for each request and returns the
     :class:`MomentMatch`; several of them (models) can share calls
-    (:func:`granbayes._search.drive`). Parameters as :func:`moment_match`.
+    (:func:`granbayes._search.drive`).
+
+    Parameters
+    ----------
+    draws, log_prob, log_lik : ndarray
+        As :func:`moment_match`.
+    obs : sequence of int
+        Observations to moment-match.
+    r_eff, k_threshold, max_iters, split, cov
+        As :func:`moment_match`.
+
+    Yields
+    ------
+    tuple of ndarray
+        Moved draws (B, S, ndim) and the observation of each (B,).
+
+    Returns
+    -------
+    MomentMatch
     """
     n_chain, n_draw, ndim = draws.shape
     n = n_chain * n_draw

@@ -1,0 +1,193 @@
+"""PSIS-LOO of jump heights, its comparison of laws, and LOO-PIT (arviz-stats).
+
+Intervals and k thresholds are always named explicitly; ArviZ's warning about large Pareto
+k is silenced where LOO is computed, because the k values are returned and reported
+(``diagnose`` recomputes flagged jumps: moment matching, refits).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping
+
+import arviz as az
+import numpy as np
+import pandas as pd
+import xarray as xr
+from arviz_stats.base import array_stats
+
+from ._cells import cell_keys
+from ._sbc import sbc_uniformity
+
+#: arviz-stats warns (UserWarning) whenever a Pareto k of PSIS-LOO exceeds its threshold.
+#: granbayes reports the k values itself (:func:`loo`: ``pareto_k``, ``max_pareto_k``,
+#: ``n_bad_k``; the fit report lists them, ``diagnose`` refits such jumps exactly), so this
+#: one warning is silenced where LOO is computed; every other warning surfaces.
+_PARETO_K_WARNING = "Estimated shape parameter of Pareto distribution is greater than"
+
+
+def _ignore_pareto_k_warning() -> None:
+    """Inside ``warnings.catch_warnings()``: silence only :data:`_PARETO_K_WARNING`."""
+    warnings.filterwarnings("ignore", message=_PARETO_K_WARNING, category=UserWarning)
+
+
+def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
+    """PSIS-LOO of the ``height_mm`` log-likelihood.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree or ndarray
+        A fit's DataTree, or a pointwise log-likelihood array of shape
+        ``(chain, draw, jump)`` (PSIS with relative efficiency 1: the kept draws are
+        thinned to roughly independent ones).
+
+    Returns
+    -------
+    dict
+        ``elpd``, ``se``, ``p`` (effective number of parameters), ``elpd_i`` and
+        ``pareto_k`` (ndarrays over jumps), ``max_pareto_k``, ``good_k`` (ArviZ's
+        sample-size dependent threshold ``min(1 - 1/log10(S), 0.7)`` for S draws, above
+        which PSIS is unreliable) and ``n_bad_k`` (jumps with k > ``good_k``).
+    """
+    if isinstance(dt, np.ndarray):
+        elpd_i, k, p_i = array_stats.loo(np.moveaxis(dt, -1, 0), chain_axis=-2, draw_axis=-1)
+        elpd_i, k = np.asarray(elpd_i, dtype=float), np.asarray(k, dtype=float)
+        good_k = _good_k(dt.shape[0] * dt.shape[1])
+        return {
+            "elpd": float(np.sum(elpd_i)),
+            "se": float(np.sqrt(elpd_i.size * np.var(elpd_i))),
+            "p": float(np.sum(p_i)),
+            "elpd_i": elpd_i,
+            "pareto_k": k,
+            "max_pareto_k": float(np.nanmax(k)),
+            "good_k": good_k,
+            "n_bad_k": int(np.sum(k > good_k)),
+        }
+    with warnings.catch_warnings():
+        _ignore_pareto_k_warning()  # the k values are returned
+        res = az.loo(dt, pointwise=True, var_name="height_mm")
+    k = np.asarray(res.pareto_k)
+    good_k = float(res.good_k)
+    return {
+        "elpd": float(res.elpd),
+        "se": float(res.se),
+        "p": float(res.p),
+        "elpd_i": np.asarray(res.elpd_i),
+        "pareto_k": k,
+        "max_pareto_k": float(np.nanmax(k)),
+        "good_k": good_k,
+        "n_bad_k": int(np.sum(k > good_k)),
+    }
+
+
+def _good_k(n_samples: int) -> float:
+    """ArviZ's Pareto k threshold for ``n_samples`` draws (as ``ELPDData.good_k``)."""
+    return float(min(1.0 - 1.0 / np.log10(n_samples), 0.7)) if n_samples > 1 else 0.7
+
+
+def elpd_difference(elpd_i_a: np.ndarray, elpd_i_b: np.ndarray) -> tuple[float, float]:
+    """ELPD difference ``a - b`` and its standard error from pointwise values.
+
+    ``se = sqrt(n var(elpd_i_a - elpd_i_b))`` (Vehtari, Gelman & Gabry 2017, eq. 24).
+
+    Parameters
+    ----------
+    elpd_i_a, elpd_i_b : ndarray
+        Pointwise ELPD [nats] of two models on the same jumps.
+
+    Returns
+    -------
+    tuple of float
+        The difference and its standard error [nats].
+    """
+    d = np.asarray(elpd_i_a, dtype=float) - np.asarray(elpd_i_b, dtype=float)
+    return float(np.sum(d)), float(np.sqrt(d.size * np.var(d)))
+
+
+def compare(models: Mapping[str, xr.DataTree]) -> pd.DataFrame:
+    """PSIS-LOO comparison (``arviz.compare``): ``elpd``, ``elpd_diff``, ``dse``, ``weight``.
+
+    Parameters
+    ----------
+    models : mapping of str to xarray.DataTree
+        Fits of the same jumps, by name.
+
+    Returns
+    -------
+    pandas.DataFrame
+    """
+    with warnings.catch_warnings():
+        _ignore_pareto_k_warning()  # flagged per model in the ``warning`` column
+        return az.compare(dict(models), var_name="height_mm")
+
+
+def cell_loo(dt: xr.DataTree) -> dict:
+    """Leave-one-*cell*-out PSIS-LOO: each cell's summed log-likelihood left out at once.
+
+    How well a law predicts a command setting it has not seen (cells: :data:`CELL_KEYS`).
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit.
+
+    Returns
+    -------
+    dict
+        As :func:`loo`, over cells (in the order of their keys).
+    """
+    ll = dt["log_likelihood"]["height_mm"].values
+    observed = dt["observed_data"].to_dataset()
+    frame = pd.DataFrame({c: observed[c].values for c in observed.coords if c != "jump"})
+    groups = frame.groupby(cell_keys(frame), sort=True).indices
+    summed = np.stack([ll[..., np.asarray(idx)].sum(axis=-1) for idx in groups.values()], -1)
+    return loo(summed)
+
+
+def loo_pit(dt: xr.DataTree) -> np.ndarray:
+    """LOO-PIT values of the measured heights (``arviz.loo_pit``, PSIS-LOO weights).
+
+    ``p(new height <= measured height | all other jumps)`` per jump: uniform on (0, 1) for
+    a calibrated predictive distribution. Needs the ``posterior_predictive``,
+    ``log_likelihood`` and ``observed_data`` groups (variable ``height_mm``).
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit.
+
+    Returns
+    -------
+    ndarray, shape (jump,)
+    """
+    with warnings.catch_warnings():
+        _ignore_pareto_k_warning()  # the PSIS weights' k values are reported by ``loo``
+        pit = az.loo_pit(_pit_tree(dt), var_names=["height_mm"])
+    return np.asarray(pit["height_mm"].values, dtype=float)
+
+
+def _pit_tree(dt: xr.DataTree) -> xr.DataTree:
+    """The groups LOO-PIT needs, with only ``height_mm`` in the predictive group."""
+    return xr.DataTree.from_dict(
+        {
+            "posterior": dt["posterior"].to_dataset(),
+            "log_likelihood": dt["log_likelihood"].to_dataset(),
+            "observed_data": dt["observed_data"].to_dataset(),
+            "posterior_predictive": dt["posterior_predictive"].to_dataset()[["height_mm"]],
+        }
+    )
+
+
+def pit_uniformity(pit: np.ndarray) -> float:
+    """p-value of ArviZ's uniformity test (``pot_c``, arviz-stats) of PIT values in (0, 1).
+
+    Parameters
+    ----------
+    pit : ndarray
+        PIT values.
+
+    Returns
+    -------
+    float
+    """
+    return float(sbc_uniformity({"pit": np.asarray(pit, dtype=float)[:, None]}, [0.0])["pit"][0])

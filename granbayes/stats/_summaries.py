@@ -1,0 +1,379 @@
+"""Posterior summaries of a fit: tables, diagnostics, identifiability, analyses' summaries."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+
+import arviz as az
+import numpy as np
+import pandas as pd
+import xarray as xr
+from numpy.typing import ArrayLike
+from scipy.stats import rankdata
+
+from ._intervals import CI_PROB, interval
+
+
+def run_diagnostics(dt: xr.DataTree) -> pd.DataFrame:
+    """Per sampler run of a fit: ensembles, steps, largest tau, R-hat, ESS, convergence.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit's DataTree (reads only its ``runs`` attribute).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per run; ``tau_max`` [steps] over ensembles and coordinates,
+        ``steps_over_tau`` the shortest post-burn-in chain in autocorrelation times,
+        ``rhat_max`` across ensembles, ``ess_min`` the smallest bulk or tail ESS.
+    """
+    rows = []
+    for run in json.loads(dt.attrs["runs"]):
+        tau = np.asarray(run["tau"], dtype=float)
+        burn = np.asarray(run["burn"], dtype=float)
+        tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else np.nan
+        per_ens = np.nanmax(tau, axis=1) if tau.ndim == 2 else np.array([tau_max])
+        rows.append(
+            {
+                "run": run["label"],
+                "n_ensembles": run["n_ensembles"],
+                "n_chains": run["n_chains"],
+                "n_steps": run["n_steps"],
+                "tau_max": tau_max,
+                "steps_over_tau": float(np.nanmin((run["n_steps"] - burn) / per_ens)),
+                "rhat_max": float(np.nanmax(run["rhat"])) if run["rhat"] else np.nan,
+                "ess_min": float(np.nanmin([*run["ess_bulk"], *run["ess_tail"]])),
+                "acceptance": run["acceptance"],
+                "converged": run["converged"],
+                "warnings": "; ".join(run["warnings"]),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def summary_table(
+    dt: xr.DataTree, var_names: Sequence[str] | None = None, ci_prob: float = CI_PROB
+) -> pd.DataFrame:
+    """Posterior summary with equal-tailed intervals, R-hat and ESS.
+
+    ``r_hat`` is the rank-normalised split R-hat **across the independent ensembles** of
+    the parameter's run, the statistic of the stopping rule, read from the fit's ``runs``
+    record. ArviZ's own R-hat would take every walker as an independent chain; the walkers
+    of one ensemble move together (each proposal uses the others), which inflates it
+    without saying anything about convergence. Where a row has no recorded value (the
+    ``quadratic`` parametrisation, or a DataTree made elsewhere) ArviZ's value is kept.
+    ESS and MCSE are ArviZ's, over the walkers as chains (as the stopping rule's ESS).
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        Result with a ``posterior`` group.
+    var_names : sequence of str, optional
+        Variables to summarise (default: all).
+    ci_prob : float
+        Probability of the equal-tailed interval (named in the column headers).
+
+    Returns
+    -------
+    pandas.DataFrame
+    """
+    table = az.summary(dt, var_names=var_names, ci_prob=ci_prob, ci_kind="eti")
+    for row, value in _ensemble_rhat(dt).items():
+        if row in table.index:
+            table.loc[row, "r_hat"] = value
+    return table
+
+
+def _ensemble_rhat(dt: xr.DataTree) -> dict[str, float]:
+    """R-hat across ensembles per summary row (``"k[0.592]"``) from the ``runs`` record."""
+    out: dict[str, float] = {}
+    for run in json.loads(dt.attrs.get("runs", "[]")):
+        label, rhat = run["label"], run.get("rhat") or []
+        if not label.startswith("phi=") or len(rhat) != len(run["coordinates"]):
+            continue
+        phi = label.removeprefix("phi=")
+        for name, value in zip(run["coordinates"], rhat, strict=True):
+            base = name.split("[")[0]
+            out[f"{base}[{phi}]"] = float(value)
+    return out
+
+
+def by_ensemble(dt: xr.DataTree, group: str = "posterior") -> xr.Dataset:
+    """A fit's draws with one chain per independent *ensemble* instead of per walker.
+
+    The walkers of an ensemble move together (each proposal uses the others), so they are
+    not independent chains; the ensembles, started apart, are. Chain ``e`` holds ensemble
+    ``e``'s kept draws in step order, its walkers inside each step (the chains of the
+    stopping rule's R-hat, :mod:`granbayes.sampler`). Where the runs of a fit kept
+    different numbers of ensembles (a stuck ensemble dropped), the walkers stay the chains.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit's DataTree (its ``runs`` attribute gives the ensembles).
+    group : str
+        The group to re-chunk.
+
+    Returns
+    -------
+    xarray.Dataset
+        Dimensions ``chain`` (ensembles), ``draw`` (walkers x draws), then the variables' own.
+    """
+    ds = dt[group].to_dataset()
+    runs = json.loads(dt.attrs.get("runs", "[]"))
+    shapes = {(r["n_ensembles"], r["n_chains"]) for r in runs}
+    n_chain = ds.sizes["chain"]
+    if len(shapes) != 1:
+        return ds
+    ((n_ens, n_chains),) = shapes
+    if n_chains != n_chain or n_chain % n_ens:
+        return ds
+    walkers, n_draw = n_chain // n_ens, ds.sizes["draw"]
+
+    def regroup(da: xr.DataArray) -> xr.DataArray:
+        v = da.transpose("chain", "draw", ...).values
+        v = v.reshape(n_ens, walkers, n_draw, *v.shape[2:]).swapaxes(1, 2)
+        other = [d for d in da.dims if d not in ("chain", "draw")]
+        return xr.DataArray(
+            v.reshape(n_ens, n_draw * walkers, *v.shape[3:]),
+            dims=("chain", "draw", *other),
+            coords={d: da.coords[d] for d in other if d in da.coords},
+            attrs=da.attrs,
+        )
+
+    out = xr.Dataset({name: regroup(da) for name, da in ds.data_vars.items()})
+    return out.assign_coords(chain=np.arange(n_ens), draw=np.arange(n_draw * walkers))
+
+
+#: Verdicts on the posterior-to-prior contraction ``1 - var_post / var_prior``: the first
+#: level whose upper bound the contraction stays below.
+IDENTIFIABILITY_LEVELS: tuple[tuple[float, str], ...] = (
+    (0.1, "not identified: posterior ~ prior"),
+    (0.5, "weakly identified: the prior still shapes the posterior"),
+    (0.9, "identified"),
+    (math.inf, "well identified: the data dominate the prior"),
+)
+
+
+def identifiability_table(dt: xr.DataTree, var_names: Sequence[str] | None = None) -> pd.DataFrame:
+    """What the data determine: posterior-to-prior contraction per parameter and phi.
+
+    The contraction ``1 - var_post / var_prior`` (Schad, Betancourt & Vasishth 2021) is 0
+    when the posterior is as wide as the prior (the data say nothing about the parameter)
+    and 1 when the data pin it down. Variances are taken in the coordinate in which the
+    prior is uniform or normal: ``log(value)`` for log-scale priors (``k``, ``r_unload``,
+    ``sigma_mm``), the value itself otherwise, so a contraction does not depend on
+    whether a stiffness is written in N/m or kN/m.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit with ``prior`` and ``posterior`` groups (``FitSettings.n_prior_draws > 0``)
+        and its ``priors`` attribute.
+    var_names : sequence of str, optional
+        Parameters (default: the fit's force parameters and ``sigma_mm``).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per parameter and volume fraction: ``parameter``, ``phi``, ``scale``
+        (``log`` or ``linear``), ``prior_sd`` and ``posterior_sd`` (in that scale),
+        ``contraction`` and ``verdict`` (:data:`IDENTIFIABILITY_LEVELS`). Empty if the fit
+        stored no prior draws.
+    """
+    columns = ["parameter", "phi", "scale", "prior_sd", "posterior_sd", "contraction", "verdict"]
+    if "prior" not in dt.children:
+        return pd.DataFrame(columns=columns)
+    priors = json.loads(dt.attrs["priors"])
+    if var_names is None:
+        var_names = [*json.loads(dt.attrs["parameters"]), "sigma_mm"]
+    prior, post = dt["prior"].to_dataset(), dt["posterior"].to_dataset()
+    rows = []
+    for name in var_names:
+        if name not in prior or name not in post:
+            continue
+        log = name in priors and priors[name]["dist"] in ("loguniform", "lognormal")
+        for phi in post["phi"].values:
+            a = prior[name].sel(phi=phi).values.ravel()
+            b = post[name].sel(phi=phi).values.ravel()
+            a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+            if log:
+                a, b = np.log(a[a > 0]), np.log(b[b > 0])
+            if a.size < 2 or b.size < 2:
+                continue
+            var_prior, var_post = float(np.var(a, ddof=1)), float(np.var(b, ddof=1))
+            c = 1.0 - var_post / var_prior if var_prior > 0 else float("nan")
+            verdict = next((t for bound, t in IDENTIFIABILITY_LEVELS if c < bound), "undetermined")
+            rows.append(
+                {
+                    "parameter": name,
+                    "phi": float(phi),
+                    "scale": "log" if log else "linear",
+                    "prior_sd": math.sqrt(var_prior),
+                    "posterior_sd": math.sqrt(var_post),
+                    "contraction": c,
+                    "verdict": verdict,
+                }
+            )
+    return pd.DataFrame(rows, columns=columns)
+
+
+def posterior_draws(
+    dt: xr.DataTree,
+    phi: float,
+    names: Sequence[str],
+    n: int,
+    rng: np.random.Generator,
+) -> dict[str, np.ndarray]:
+    """``n`` joint posterior draws (with replacement) of ``names`` at volume fraction ``phi``.
+
+    The same (chain, draw) pairs are used for every name, so correlations are kept.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit's DataTree; its ``posterior`` has the variables ``names`` over ``phi``.
+    phi : float
+        Volume fraction [-]; the nearest one of the posterior is used.
+    names : sequence of str
+        Posterior variables (force parameters [SI], ``sigma_mm`` [mm]).
+    n : int
+        Number of draws.
+    rng : numpy.random.Generator
+        Picks the (chain, draw) pairs.
+
+    Returns
+    -------
+    dict of str to ndarray, shape (n,)
+    """
+    post = dt.posterior.to_dataset().sel(phi=phi, method="nearest")
+    n_chain, n_draw = post.sizes["chain"], post.sizes["draw"]
+    idx = rng.integers(0, n_chain * n_draw, size=n)
+    return {name: post[name].values.reshape(n_chain * n_draw)[idx].astype(float) for name in names}
+
+
+def posterior_intervals(
+    dt: xr.DataTree, names: Sequence[str], phis: Sequence[float], ci_prob: float = CI_PROB
+) -> pd.DataFrame:
+    """Median and equal-tailed interval of posterior variables at each volume fraction.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit's DataTree (variables over ``chain``, ``draw`` and ``phi``).
+    names : sequence of str
+        Variables (force parameters [SI], ``sigma_mm`` [mm]).
+    phis : sequence of float
+        Volume fractions [-] (exact coordinates of the posterior).
+    ci_prob : float
+        Probability of the interval.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per (name, phi), names outer: ``phi``, ``parameter``, ``median``, ``lo``,
+        ``hi`` (in the variable's unit).
+    """
+    post = dt.posterior.to_dataset()
+    rows = []
+    for name in names:
+        for phi in phis:
+            med, lo, hi = interval(post[name].sel(phi=phi).values.ravel(), ci_prob)
+            rows.append({"phi": phi, "parameter": name, "median": med, "lo": lo, "hi": hi})
+    return pd.DataFrame(rows, columns=["phi", "parameter", "median", "lo", "hi"])
+
+
+def p_greater(a: ArrayLike, b: ArrayLike) -> float:
+    """Paired probability ``a > b`` over the draws where both are finite (NaN if none).
+
+    Parameters
+    ----------
+    a, b : array_like
+        Paired draws.
+    """
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    ok = np.isfinite(a) & np.isfinite(b)
+    return float(np.mean(a[ok] > b[ok])) if ok.any() else math.nan
+
+
+def pearson_rows(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Pearson r across columns for every row (NaN pairs dropped; NaN if < 3 pairs).
+
+    Parameters
+    ----------
+    x, y : ndarray, shape (n_rows, n_columns)
+
+    Returns
+    -------
+    ndarray, shape (n_rows,)
+    """
+    out = np.full(x.shape[0], np.nan)
+    for s in range(x.shape[0]):
+        ok = np.isfinite(x[s]) & np.isfinite(y[s])
+        if ok.sum() >= 3 and np.std(x[s, ok]) > 0 and np.std(y[s, ok]) > 0:
+            out[s] = np.corrcoef(x[s, ok], y[s, ok])[0, 1]
+    return out
+
+
+def spearman_rows(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Spearman rank correlation across columns for every row (NaN pairs dropped).
+
+    Parameters
+    ----------
+    x, y : ndarray, shape (n_rows, n_columns)
+
+    Returns
+    -------
+    ndarray, shape (n_rows,)
+    """
+    out = np.full(x.shape[0], np.nan)
+    for s in range(x.shape[0]):
+        ok = np.isfinite(x[s]) & np.isfinite(y[s])
+        if ok.sum() >= 3:
+            out[s] = pearson_rows(rankdata(x[s, ok])[None], rankdata(y[s, ok])[None])[0]
+    return out
+
+
+def correlation(
+    x_med: np.ndarray,
+    y_med: np.ndarray,
+    x_draws: np.ndarray,
+    y_draws: np.ndarray,
+    ci_prob: float = CI_PROB,
+) -> dict:
+    """Correlation of two quantities across cells: point (medians) and propagated.
+
+    Parameters
+    ----------
+    x_med, y_med : ndarray, shape (n_cell,)
+        Posterior medians per cell.
+    x_draws, y_draws : ndarray, shape (n_draw, n_cell)
+        Draw ``s`` of every cell.
+    ci_prob : float
+        Probability of the interval of the propagated r.
+
+    Returns
+    -------
+    dict
+        Pearson (``point``: r of the medians; ``median``, ``interval``: of r computed
+        across cells for every draw index; ``p_positive``: share of draws with r > 0;
+        ``n_draws``), with a ``spearman`` entry of the same form.
+    """
+    out: dict = {}
+    for name, rows in (("pearson", pearson_rows), ("spearman", spearman_rows)):
+        point = float(rows(x_med[None], y_med[None])[0])
+        per_draw = rows(x_draws, y_draws)
+        med, lo, hi = interval(per_draw, ci_prob)
+        finite = per_draw[np.isfinite(per_draw)]
+        out[name] = {
+            "point": point,
+            "median": med,
+            "interval": [lo, hi],
+            "p_positive": float(np.mean(finite > 0)) if finite.size else math.nan,
+            "n_draws": int(finite.size),
+        }
+    return {**out["pearson"], "spearman": out["spearman"]}
