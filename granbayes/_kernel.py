@@ -18,12 +18,23 @@ are its exact closed form (modal decomposition per regime, ``_lin_prepare``), un
 the closed form prove free of events (``_lin_safe``: to the end of the actuator segment or
 of the height window if possible; ``max_step`` applies only when a trajectory is
 recorded); where no long step can be proved, steps of a fixed fraction of the fastest
-period bracket the events as Dormand-Prince steps do.
+period bracket the events as Dormand-Prince steps do. The bounds are per component of the
+closed form and joint (the foot's own height, velocity and a bound on its acceleration),
+whichever is tighter. The modal decomposition is made once per regime and actuator segment
+(the last contact regime and the last free regime are kept for the robot's return, and a
+new contact regime's eigenvalues are found by Newton from the last one's); from step to
+step the modal amplitudes are carried, and the factors ``exp(lam h)`` of the standard step
+are stored with the regime. Once the foot flies freely after the command and cannot rise
+above the height already reached (the centre of mass's apex plus the range of the damped
+oscillation about it), the height is final and the jump ends there (a recorded trajectory
+goes on to the touchdown).
 
 Events are located on the step's cubic Hermite interpolant and then refined with real
-Runge-Kutta steps from the step start (safeguarded Newton in a bracket), so the state after
-an event is a genuine 5th-order solution. The integrator never raises: each jump returns a
-status code (``STATUS_*``), and its height is NaN unless the status is ``STATUS_OK``.
+Runge-Kutta steps from the step start (safeguarded Newton in a bracket, on the local
+quadratic model of the event function; a velocity event's second derivative, the foot's
+jerk, is a difference of the right-hand side along the flow), so the state after an event
+is a genuine 5th-order solution. The integrator never raises: each jump returns a status
+code (``STATUS_*``), and its height is NaN unless the status is ``STATUS_OK``.
 
 Input layout: one float row per jump (``ROW_*`` indices: robot, phi, then the force-term
 parameters in ``forces.PARAMETER_NAMES`` order); a command table per command (see
@@ -32,7 +43,6 @@ parameters in ``forces.PARAMETER_NAMES`` order); a command table per command (se
 
 from __future__ import annotations
 
-import cmath
 import math
 
 import numpy as np
@@ -96,6 +106,8 @@ G = 9.81
 CONE_THETA = math.pi / 3.0  # 60 deg
 CONE_TAN = math.tan(CONE_THETA)
 CONE_MU = 2.0
+_CONE_ITAN = 1.0 / CONE_TAN
+_CONE_ITAN2_3 = 1.0 / (3.0 * CONE_TAN**2)
 
 # context vector (per jump, derived from the row)
 _C_M, _C_MMOT, _C_MF, _C_KS, _C_CS = 0, 1, 2, 3, 4
@@ -112,13 +124,27 @@ _MODAL_SIZE = 14
 # amplitude) of x_f, |lam| of each mode
 _C_LINXEQ = _C_MODAL + 2 * _MODAL_SIZE
 _C_LINFC, _C_LINFS, _C_LINFA, _C_LINL1, _C_LINL2 = range(_C_LINXEQ + 1, _C_LINXEQ + 6)
+# the regime's standard step h_fix = min(theta / fastest frequency, max_step) and
+# exp(lam h_fix) of each mode (complex)
+_C_LINH = _C_LINXEQ + 6
+_C_LINE = _C_LINH + 1
+_C_LINEND = _C_LINE + 4
+_LIN_BLOCK = _C_LINEND - _C_LIN
 # the last contact regime's closed form (the block _C_LIN.._C_LINEND), keyed by unloading
-# slope, constant force of the unloading line and actuator coefficient: the robot often
-# returns to the same contact after a bounce
-_C_LINEND = _C_LINXEQ + 6
+# slope, constant force of the unloading line and actuator coefficient (the robot often
+# returns to the same contact after a bounce), then the last free regime's, keyed by the
+# actuator coefficient (it does not depend on the bed)
 _C_CKEY = _C_LINEND
 _C_CBLOCK = _C_CKEY + 4
-_C_SIZE = _C_CBLOCK + (_C_LINEND - _C_LIN)
+_C_FKEY = _C_CBLOCK + _LIN_BLOCK
+_C_FBLOCK = _C_FKEY + 2
+# the last contact regime's eigenvalues and unloading slope: Newton's start for the next
+# contact (after an advancing episode the slope has changed a little)
+_C_ROOTS = _C_FBLOCK + _LIN_BLOCK
+# 1 / (m_motor + m_rod) and 1 / m_foot
+_C_MINV = _C_ROOTS + 6
+_C_MFINV = _C_MINV + 1
+_C_SIZE = _C_MFINV + 1
 
 #: Grain-scale compaction length l_c [m] of the ``compaction`` term: the depth of intrusion
 #: over which a loose bed approaches its compacted state (about one poppy-seed diameter;
@@ -223,10 +249,10 @@ def _end_of_episode(z, c):
 @njit(cache=True)
 def cone_volume(h, radius):
     """Volume [m^3] of the jammed cone of height h [m] under a foot of given radius."""
-    return math.pi * h * (radius * radius - radius * h / CONE_TAN + h * h / (3.0 * CONE_TAN**2))
+    return math.pi * h * (radius * radius - h * (radius * _CONE_ITAN - h * _CONE_ITAN2_3))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ground(z, zd, mode, c):
     """Ground force F_g [N], added mass m_a [kg] and momentum flux [N] (up positive)."""
     if mode == MODE_ADVANCING:
@@ -236,7 +262,7 @@ def _ground(z, zd, mode, c):
             h = CONE_MU * (z - c[_C_ZENTRY])
             radius = c[_C_RAD]
             if h < c[_C_HFULL]:
-                q = radius - h / CONE_TAN
+                q = radius - h * _CONE_ITAN
                 return fg, am * cone_volume(h, radius), am * CONE_MU * math.pi * q * q * zd * zd
             return fg, am * cone_volume(c[_C_HFULL], radius), 0.0
         return fg, 0.0, 0.0
@@ -247,7 +273,7 @@ def _ground(z, zd, mode, c):
 
 # ----------------------------------------------------------------------------------------
 # equations of motion (physics-model.md section 2); state (x_rod, x_foot, v_rod, v_foot)
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _accel(t, xr, xf, vr, vf, mode, c):
     """Accelerations (rod, foot) [m/s^2]."""
     coef = c[_C_SEGCOEF]
@@ -255,9 +281,32 @@ def _accel(t, xr, xf, vr, vf, mode, c):
     if coef != 0.0:  # the actuator is idle (held) for most of a jump
         w = c[_C_OMEGA]
         alpha_dd = -coef * w * w * math.cos(w * (t - c[_C_SEGT0]))
+    return _accel_a(alpha_dd, xr, xf, vr, vf, mode, c)
+
+
+@njit(cache=True, inline="always")
+def _accel_a(alpha_dd, xr, xf, vr, vf, mode, c):
+    """Accelerations (rod, foot) [m/s^2] with the actuator's acceleration ``alpha_dd``."""
     fs = c[_C_KS] * (xf - xr) + c[_C_CS] * (vf - vr)
     fg, ma, flux = _ground(-xf, -vf, mode, c)
-    return (fs - c[_C_MMOT] * alpha_dd) / c[_C_M] - G, (fg + flux - fs) / (c[_C_MF] + ma) - G
+    minv = c[_C_MFINV] if ma == 0.0 else 1.0 / (c[_C_MF] + ma)
+    return (fs - c[_C_MMOT] * alpha_dd) * c[_C_MINV] - G, (fg + flux - fs) * minv - G
+
+
+@njit(cache=True)
+def _cos_shift(c0, s0, phi):
+    """cos(theta + phi) from c0 = cos(theta), s0 = sin(theta), for |phi| <= 1.
+
+    Taylor series of cos(phi) and sin(phi) to phi^19 (remainder below 1e-18).
+    """
+    u = phi * phi
+    cp = 1.0 + u * (-1.0 / 2 + u * (1.0 / 24 + u * (-1.0 / 720 + u * (1.0 / 40320
+         + u * (-1.0 / 3628800 + u * (1.0 / 479001600 + u * (-1.0 / 87178291200
+         + u * (1.0 / 20922789888000 + u * (-1.0 / 6402373705728000)))))))))  # fmt: skip
+    sp = phi * (1.0 + u * (-1.0 / 6 + u * (1.0 / 120 + u * (-1.0 / 5040 + u * (1.0 / 362880
+         + u * (-1.0 / 39916800 + u * (1.0 / 6227020800 + u * (-1.0 / 1307674368000
+         + u * (1.0 / 355687428096000 + u * (-1.0 / 121645100408832000))))))))))  # fmt: skip
+    return c0 * cp - s0 * sp
 
 
 @njit(cache=True)
@@ -270,47 +319,69 @@ def _dopri_step(t, y, f, h, mode, c, tol):
     """
     x1, x2, v1, v2 = y
     a1, a2 = f
+    # the actuator's acceleration at the stages (stage 6 and the new state share t + h): the
+    # cosine of its phase at t shifted by short series (exact to rounding)
+    ad2 = ad3 = ad4 = ad5 = ad6 = 0.0
+    coef = c[_C_SEGCOEF]
+    if coef != 0.0:
+        w = c[_C_OMEGA]
+        amp = -coef * w * w
+        th = w * (t - c[_C_SEGT0])
+        wh = w * h
+        if abs(wh) <= 1.0:
+            c0, s0 = math.cos(th), math.sin(th)
+            ad2 = amp * _cos_shift(c0, s0, _C2 * wh)
+            ad3 = amp * _cos_shift(c0, s0, _C3 * wh)
+            ad4 = amp * _cos_shift(c0, s0, _C4 * wh)
+            ad5 = amp * _cos_shift(c0, s0, _C5 * wh)
+            ad6 = amp * _cos_shift(c0, s0, wh)
+        else:
+            ad2 = amp * math.cos(th + _C2 * wh)
+            ad3 = amp * math.cos(th + _C3 * wh)
+            ad4 = amp * math.cos(th + _C4 * wh)
+            ad5 = amp * math.cos(th + _C5 * wh)
+            ad6 = amp * math.cos(th + wh)
     # stage 2
     p1 = x1 + h * _A21 * v1
     p2 = x2 + h * _A21 * v2
     q1 = v1 + h * _A21 * a1
     q2 = v2 + h * _A21 * a2
-    b1, b2 = _accel(t + _C2 * h, p1, p2, q1, q2, mode, c)
+    b1, b2 = _accel_a(ad2, p1, p2, q1, q2, mode, c)
     u1, u2 = q1, q2
     # stage 3
     p1 = x1 + h * (_A31 * v1 + _A32 * u1)
     p2 = x2 + h * (_A31 * v2 + _A32 * u2)
     q1 = v1 + h * (_A31 * a1 + _A32 * b1)
     q2 = v2 + h * (_A31 * a2 + _A32 * b2)
-    c1, c2 = _accel(t + _C3 * h, p1, p2, q1, q2, mode, c)
+    c1, c2 = _accel_a(ad3, p1, p2, q1, q2, mode, c)
     w1, w2 = q1, q2
     # stage 4
     p1 = x1 + h * (_A41 * v1 + _A42 * u1 + _A43 * w1)
     p2 = x2 + h * (_A41 * v2 + _A42 * u2 + _A43 * w2)
     q1 = v1 + h * (_A41 * a1 + _A42 * b1 + _A43 * c1)
     q2 = v2 + h * (_A41 * a2 + _A42 * b2 + _A43 * c2)
-    d1, d2 = _accel(t + _C4 * h, p1, p2, q1, q2, mode, c)
+    d1, d2 = _accel_a(ad4, p1, p2, q1, q2, mode, c)
     r1, r2 = q1, q2
     # stage 5
     p1 = x1 + h * (_A51 * v1 + _A52 * u1 + _A53 * w1 + _A54 * r1)
     p2 = x2 + h * (_A51 * v2 + _A52 * u2 + _A53 * w2 + _A54 * r2)
     q1 = v1 + h * (_A51 * a1 + _A52 * b1 + _A53 * c1 + _A54 * d1)
     q2 = v2 + h * (_A51 * a2 + _A52 * b2 + _A53 * c2 + _A54 * d2)
-    e1, e2 = _accel(t + _C5 * h, p1, p2, q1, q2, mode, c)
+    e1, e2 = _accel_a(ad5, p1, p2, q1, q2, mode, c)
     s1, s2 = q1, q2
     # stage 6
     p1 = x1 + h * (_A61 * v1 + _A62 * u1 + _A63 * w1 + _A64 * r1 + _A65 * s1)
     p2 = x2 + h * (_A61 * v2 + _A62 * u2 + _A63 * w2 + _A64 * r2 + _A65 * s2)
     q1 = v1 + h * (_A61 * a1 + _A62 * b1 + _A63 * c1 + _A64 * d1 + _A65 * e1)
     q2 = v2 + h * (_A61 * a2 + _A62 * b2 + _A63 * c2 + _A64 * d2 + _A65 * e2)
-    g1, g2 = _accel(t + h, p1, p2, q1, q2, mode, c)
+    g1, g2 = _accel_a(ad6, p1, p2, q1, q2, mode, c)
     o1, o2 = q1, q2
     # 5th-order solution and FSAL stage
     nx1 = x1 + h * (_B1 * v1 + _B3 * w1 + _B4 * r1 + _B5 * s1 + _B6 * o1)
     nx2 = x2 + h * (_B1 * v2 + _B3 * w2 + _B4 * r2 + _B5 * s2 + _B6 * o2)
     nv1 = v1 + h * (_B1 * a1 + _B3 * c1 + _B4 * d1 + _B5 * e1 + _B6 * g1)
     nv2 = v2 + h * (_B1 * a2 + _B3 * c2 + _B4 * d2 + _B5 * e2 + _B6 * g2)
-    n1, n2 = _accel(t + h, nx1, nx2, nv1, nv2, mode, c)
+    n1, n2 = _accel_a(ad6, nx1, nx2, nv1, nv2, mode, c)
     # embedded error estimate
     ex1 = h * (_E1 * v1 + _E3 * w1 + _E4 * r1 + _E5 * s1 + _E6 * o1 + _E7 * nv1)
     ex2 = h * (_E1 * v2 + _E3 * w2 + _E4 * r2 + _E5 * s2 + _E6 * o2 + _E7 * nv2)
@@ -333,22 +404,55 @@ def _dopri_step(t, y, f, h, mode, c, tol):
 # (eigenvalue lam, shape phi, left eigenvector [phi^T (lam M + C), phi^T M]) plus, when
 # free, the centre of mass in free fall; the steps are exact and only resolve the events.
 @njit(cache=True)
+def _abs2(z):
+    """|z|^2 of a complex number."""
+    return z.real * z.real + z.imag * z.imag
+
+
+@njit(cache=True)
+def _inv(z):
+    """1 / z of a complex number (nonzero; no overflow concerns here)."""
+    r = 1.0 / _abs2(z)
+    return complex(z.real * r, -z.imag * r)
+
+
+@njit(cache=True)
+def _exp_lam(lam, tau):
+    """exp(lam tau) of a complex ``lam`` and a real ``tau``."""
+    r = math.exp(lam.real * tau)
+    th = lam.imag * tau
+    return complex(r * math.cos(th), r * math.sin(th))
+
+
+@njit(cache=True)
 def _newton_root(a4, a3, a2, a1, a0, s):
     """Root of the quartic sum a_k s^k by Newton from ``s``; (root, converged)."""
+    x, y = s.real, s.imag
     for _ in range(60):
-        p = (((a4 * s + a3) * s + a2) * s + a1) * s + a0
-        dp = ((4.0 * a4 * s + 3.0 * a3) * s + 2.0 * a2) * s + a1
-        d2 = dp.real * dp.real + dp.imag * dp.imag
+        # Horner in real arithmetic: p(s) and p'(s)
+        pr, pi = a4 * x + a3, a4 * y
+        dr, di = 4.0 * a4 * x + 3.0 * a3, 4.0 * a4 * y
+        pr, pi = pr * x - pi * y + a2, pr * y + pi * x
+        dr, di = dr * x - di * y + 2.0 * a2, dr * y + di * x
+        pr, pi = pr * x - pi * y + a1, pr * y + pi * x
+        dr, di = dr * x - di * y + a1, dr * y + di * x
+        pr, pi = pr * x - pi * y + a0, pr * y + pi * x
+        d2 = dr * dr + di * di
         if d2 == 0.0:
-            return s, False
-        ds = p * dp.conjugate() / d2
-        s -= ds
-        if ds.real * ds.real + ds.imag * ds.imag <= 1e-30 * (s.real * s.real + s.imag * s.imag):
+            return complex(x, y), False
+        # ds = p / p'
+        dsr = (pr * dr + pi * di) / d2
+        dsi = (pi * dr - pr * di) / d2
+        x -= dsr
+        y -= dsi
+        # quadratic convergence: a step of 1e-10 |s| leaves an error of about 1e-20 |s|
+        if dsr * dsr + dsi * dsi <= 1e-20 * (x * x + y * y):
             break
-    r = abs(s)
+    s = complex(x, y)
+    r = math.sqrt(_abs2(s))
     scale = (((a4 * r + abs(a3)) * r + a2) * r + a1) * r + a0
     p = (((a4 * s + a3) * s + a2) * s + a1) * s + a0
-    return s, abs(p) <= 1e-11 * scale and s.imag > 0.0
+    return s, _abs2(p) <= (1e-11 * scale) ** 2 and s.imag > 0.0
 
 
 @njit(cache=True)
@@ -363,11 +467,22 @@ def _damped_guess(om2, mu, mf, ks, cs):
 
 
 @njit(cache=True)
-def _lin_prepare(mode, c):
+def _copy_block(c, src, dst):
+    """Copy the closed-form block of ``_LIN_BLOCK`` numbers from ``c[src:]`` to ``c[dst:]``."""
+    for i in range(_LIN_BLOCK):
+        c[dst + i] = c[src + i]
+
+
+@njit(cache=True)
+def _lin_prepare(mode, c, theta, hmax):
     """Modal data of the current regime and actuator segment; ``c[_C_LIN] = 0`` if none.
 
     No closed form (numerical steps instead) while advancing, for an overdamped mode or
-    nearly coincident modes, or near an undamped resonance with the actuator.
+    nearly coincident modes, or near an undamped resonance with the actuator. ``theta``
+    [rad] and ``hmax`` [s] set the regime's standard step ``h_fix = min(theta / fastest
+    frequency, hmax)``, whose modal factors ``exp(lam h_fix)`` are stored with the data.
+    The last contact regime and the last free regime are kept: a robot bouncing on the
+    bed returns to them.
     """
     c[_C_LIN] = 0.0
     if mode == MODE_ADVANCING:
@@ -378,6 +493,9 @@ def _lin_prepare(mode, c):
     lam1 = 0j
     lam2 = 0j
     if mode == MODE_FREE:
+        if c[_C_FKEY + 1] != 0.0 and c[_C_FKEY] == coef:  # the last free regime's
+            _copy_block(c, _C_FBLOCK, _C_LIN)
+            return
         nm = 1
         fc = 0.0
         mr = mu * mf / (mu + mf)
@@ -392,64 +510,90 @@ def _lin_prepare(mode, c):
         fc = c[_C_FSMAX] - sb * c[_C_ZMAX]
         key = c[_C_CKEY] == sb and c[_C_CKEY + 1] == fc and c[_C_CKEY + 2] == coef
         if key and c[_C_CKEY + 3] != 0.0:  # the last contact's closed form
-            c[_C_LIN:_C_LINEND] = c[_C_CBLOCK : _C_CBLOCK + (_C_LINEND - _C_LIN)]
+            _copy_block(c, _C_CBLOCK, _C_LIN)
             return
         a4, a3, a2, a1, a0 = mu * mf, cs * (mu + mf), mu * (ks + sb) + mf * ks, cs * sb, ks * sb
         disc = a2 * a2 - 4.0 * a4 * a0
         if disc <= 0.0 or a0 <= 0.0:
             return
-        om_hi = (a2 + math.sqrt(disc)) / (2.0 * a4)  # undamped squared frequencies
-        om_lo = a0 / (a4 * om_hi)
-        # Newton from the undamped modes with their first-order damping (the damping
-        # matrix projected on the undamped mode shape)
-        lam1, ok1 = _newton_root(a4, a3, a2, a1, a0, _damped_guess(om_lo, mu, mf, ks, cs))
-        lam2, ok2 = _newton_root(a4, a3, a2, a1, a0, _damped_guess(om_hi, mu, mf, ks, cs))
-        if not (ok1 and ok2) or abs(lam1 - lam2) <= 1e-6 * abs(lam2):
-            return
+        ok1 = ok2 = False
+        sb0 = c[_C_ROOTS]
+        if c[_C_ROOTS + 1] != 0.0 and abs(sb - sb0) <= 0.1 * sb0:
+            # Newton from the last contact's eigenvalues (a nearby unloading slope)
+            lam1, ok1 = _newton_root(a4, a3, a2, a1, a0, complex(c[_C_ROOTS + 2], c[_C_ROOTS + 3]))
+            lam2, ok2 = _newton_root(a4, a3, a2, a1, a0, complex(c[_C_ROOTS + 4], c[_C_ROOTS + 5]))
+        if not (ok1 and ok2) or _abs2(lam1 - lam2) <= 1e-12 * _abs2(lam2):
+            om_hi = (a2 + math.sqrt(disc)) / (2.0 * a4)  # undamped squared frequencies
+            om_lo = a0 / (a4 * om_hi)
+            # Newton from the undamped modes with their first-order damping (the damping
+            # matrix projected on the undamped mode shape)
+            lam1, ok1 = _newton_root(a4, a3, a2, a1, a0, _damped_guess(om_lo, mu, mf, ks, cs))
+            lam2, ok2 = _newton_root(a4, a3, a2, a1, a0, _damped_guess(om_hi, mu, mf, ks, cs))
+            if not (ok1 and ok2) or _abs2(lam1 - lam2) <= 1e-12 * _abs2(lam2):
+                return
+        c[_C_ROOTS] = sb
+        c[_C_ROOTS + 1] = 1.0
+        c[_C_ROOTS + 2] = lam1.real
+        c[_C_ROOTS + 3] = lam1.imag
+        c[_C_ROOTS + 4] = lam2.real
+        c[_C_ROOTS + 5] = lam2.imag
     wmax = w if coef != 0.0 else 0.0
     xeq = fcs = fsn = 0.0
     for j in range(nm):
         lam = lam1 if j == 0 else lam2
         pr = cs * lam + ks
         pf = mu * lam * lam + cs * lam + ks
-        n = 2.0 * lam * (mu * pr * pr + mf * pf * pf) + cs * (pr - pf) ** 2
+        d = pr - pf
+        n = 2.0 * lam * (mu * pr * pr + mf * pf * pf) + cs * d * d
         if n == 0.0:
             return
-        ninv = 1.0 / n
+        ninv = _inv(n)
         # free: gravity does not excite the oscillation (phi^T M (1, 1) = 0)
         beta = 0j if mode == MODE_FREE else (pr * (-mu * G) + pf * (fc - mf * G)) * ninv
         pc = 0j
         ps = 0j
         if coef != 0.0:
             den = lam * lam + w * w
-            if abs(den) < 1e-8 * w * w:
+            if _abs2(den) < 1e-16 * w**4:
                 return
-            delta = pr * fmot * ninv
-            pc = -delta * lam / den
-            ps = delta * w / den
+            delta = pr * fmot * ninv * _inv(den)
+            pc = -delta * lam
+            ps = delta * w
         b = _C_MODAL + j * _MODAL_SIZE
-        p0 = -beta / lam
+        p0 = -beta * _inv(lam)
         for i, v in enumerate((lam, pr, pf, ninv, p0, pc, ps)):
             c[b + 2 * i] = v.real
             c[b + 2 * i + 1] = v.imag
-        wmax = max(wmax, abs(lam))
-        c[_C_LINL1 + j] = abs(lam)
+        lam_abs = math.sqrt(_abs2(lam))
+        wmax = max(wmax, lam_abs)
+        c[_C_LINL1 + j] = lam_abs
         xeq += 2.0 * (pf * p0).real
         fcs += 2.0 * (pf * pc).real
         fsn += 2.0 * (pf * ps).real
+    h_fix = min(theta / wmax, hmax)
+    for j in range(nm):
+        b = _C_MODAL + j * _MODAL_SIZE
+        e = _exp_lam(complex(c[b], c[b + 1]), h_fix)
+        c[_C_LINE + 2 * j] = e.real
+        c[_C_LINE + 2 * j + 1] = e.imag
+    c[_C_LINH] = h_fix
     c[_C_NMODE] = nm
     c[_C_LINW] = wmax
     c[_C_LINXEQ] = xeq
     c[_C_LINFC] = fcs
     c[_C_LINFS] = fsn
-    c[_C_LINFA] = (1.0 + 1e-12) * math.hypot(fcs, fsn)
+    c[_C_LINFA] = (1.0 + 1e-12) * math.sqrt(fcs * fcs + fsn * fsn)
     c[_C_LIN] = 1.0
     if mode == MODE_CONTACT:
         c[_C_CKEY] = c[_C_SUNL]
         c[_C_CKEY + 1] = fc
         c[_C_CKEY + 2] = coef
         c[_C_CKEY + 3] = 1.0
-        c[_C_CBLOCK : _C_CBLOCK + (_C_LINEND - _C_LIN)] = c[_C_LIN:_C_LINEND]
+        _copy_block(c, _C_LIN, _C_CBLOCK)
+    else:
+        c[_C_FKEY] = coef
+        c[_C_FKEY + 1] = 1.0
+        _copy_block(c, _C_LIN, _C_FBLOCK)
 
 
 @njit(cache=True)
@@ -487,14 +631,21 @@ def _lin_modal(t, y, c):
 
 
 @njit(cache=True)
-def _lin_eval(t, y, tau, a1, a2, c0, s0, c):
+def _lin_advance(t, y, tau, a1, a2, c0, s0, c):
     """Exact state at ``t + tau`` from state ``y`` at ``t`` with modal amplitudes
-    ``_lin_modal(t, y, c)``.
+    ``_lin_modal(t, y, c)``, and the amplitudes and actuator phase there.
+
+    Returns ``(y1, b1, b2, c1, s1)``: the state, the modal amplitudes ``b_j = a_j exp(lam_j
+    tau)`` at ``t + tau`` (those of ``_lin_modal(t + tau, y1, c)``, so that a sequence of
+    steps in one regime needs the modal decomposition only once) and the cosine and sine of
+    the actuator phase there. The regime's standard step ``h_fix`` uses the stored
+    ``exp(lam h_fix)``.
     """
     xr, xf, vr, vf = y
     mu, mf = c[_C_M], c[_C_MF]
     w = c[_C_OMEGA]
     forced = c[_C_SEGCOEF] != 0.0
+    fixed = tau == c[_C_LINH]
     c1 = s1 = 0.0
     if forced:
         th1 = w * (t + tau - c[_C_SEGT0])
@@ -513,6 +664,7 @@ def _lin_eval(t, y, tau, a1, a2, c0, s0, c):
             vc += kap * w * (s1 - s0)
         nxr = nxf = xc
         nvr = nvf = vc
+    b1 = b2 = 0j
     for j in range(nm):
         b = _C_MODAL + j * _MODAL_SIZE
         lam = complex(c[b], c[b + 1])
@@ -521,20 +673,46 @@ def _lin_eval(t, y, tau, a1, a2, c0, s0, c):
         qp1 = complex(c[b + 8], c[b + 9])
         if forced:
             qp1 += complex(c[b + 10], c[b + 11]) * c1 + complex(c[b + 12], c[b + 13]) * s1
-        q = cmath.exp(lam * tau) * (a1 if j == 0 else a2) + qp1
+        if fixed:
+            e = complex(c[_C_LINE + 2 * j], c[_C_LINE + 2 * j + 1])
+        else:
+            e = _exp_lam(lam, tau)
+        if j == 0:
+            b1 = e * a1
+            q = b1 + qp1
+        else:
+            b2 = e * a2
+            q = b2 + qp1
         lq = lam * q
         nxr += 2.0 * (pr * q).real
         nxf += 2.0 * (pf * q).real
         nvr += 2.0 * (pr * lq).real
         nvf += 2.0 * (pf * lq).real
-    return (nxr, nxf, nvr, nvf)
+    return (nxr, nxf, nvr, nvf), b1, b2, c1, s1
 
 
 @njit(cache=True)
-def _lin_step(t, y, tau, c):
-    """Exact state at ``t + tau`` from state ``y`` at ``t`` in a linear regime."""
-    a1, a2, c0, s0 = _lin_modal(t, y, c)
-    return _lin_eval(t, y, tau, a1, a2, c0, s0, c)
+def _lin_eval(t, y, tau, a1, a2, c0, s0, c):
+    """Exact state at ``t + tau`` (``_lin_advance`` without the amplitudes there)."""
+    return _lin_advance(t, y, tau, a1, a2, c0, s0, c)[0]
+
+
+@njit(cache=True)
+def _free_ceiling(y, a1, c):
+    """Upper bound of the foot height over the rest of a free flight with the actuator idle.
+
+    The centre of mass rises at most to its apex, and the oscillation about it (modal
+    amplitude ``a1``, damped) never exceeds its present range ``2 |phi_f a1|``.
+    """
+    mu, mf = c[_C_M], c[_C_MF]
+    mt = mu + mf
+    xc = (mu * y[0] + mf * y[1]) / mt
+    vc = (mu * y[2] + mf * y[3]) / mt
+    if vc > 0.0:
+        xc += 0.5 * vc * vc / G
+    b = _C_MODAL
+    z = complex(c[b + 4], c[b + 5]) * a1
+    return xc + 2.0 * (1.0 + 1e-12) * math.sqrt(_abs2(z)) + 1e-12
 
 
 @njit(cache=True)
@@ -563,9 +741,13 @@ def _lin_safe(t, y, a1, a2, c0, s0, c, lo, hi, top, tau_fix, tau_max):
     contact) and components bounded by their value and slope at ``t``, a bound on their
     curvature and a bound on their range: each mode ``2 Re(phi_f a e^(lam s))`` by ``2
     |phi_f a|`` (its modes are damped), the actuator's particular motion by its amplitude,
-    its push on the free centre of mass by its curvature. The bounds are monotone in
-    ``tau``. Returns the largest such ``tau`` in ``[tau_fix, tau_max]`` (by bisection, to
-    a few per cent), or 0 if not even ``tau_fix`` can be proved event-free.
+    its push on the free centre of mass by its curvature. The same curvature bounds give a
+    second, joint bound: ``x_f`` itself has value ``y[1]`` and slope ``y[3]`` at ``t`` and
+    a curvature within ``p2 -+ r2`` (``p2``: that of the exact part), which is the tighter
+    one just after an event, where the foot leaves a threshold while the components move
+    apart. Both bounds are monotone in ``tau``. Returns 0 if not even ``tau_fix`` can be
+    proved event-free (tried first: the common case near an event), else the largest such
+    ``tau`` in ``[tau_fix, tau_max]`` (by bisection, to a few per cent).
     """
     w = c[_C_OMEGA]
     forced = c[_C_SEGCOEF] != 0.0
@@ -612,12 +794,16 @@ def _lin_safe(t, y, a1, a2, c0, s0, c, lo, hi, top, tau_fix, tau_max):
     mb2, mb3 = ma * ml * ml, ma * ml * ml * ml
     nb2, nb3 = na * nl * nl, na * nl * nl * nl
     fb2, fb3 = famp * w * w, famp * w * w * w
+    # the joint bound: x_f'' within [alo, ahi] (alo <= 0)
+    x0, v0 = y[1], y[3]
+    r2 = kb + mb2 + nb2 + fb2
+    alo, ahi = p2 - r2, p2 + r2
     apex = top < np.inf
     lo_m = lo + 1e-12
     hi_m = min(hi, top) - 1e-12
     ok_hi = hi - 1e-12
     tau_ok = 0.0
-    tau = tau_max
+    tau = tau_fix
     lo_t = tau_fix
     hi_t = tau_max
     for it in range(2 + LIN_BISECT):
@@ -636,6 +822,9 @@ def _lin_safe(t, y, a1, a2, c0, s0, c, lo, hi, top, tau_fix, tau_max):
         if forced:
             xmin += _env_lo(f0, f1, fb2, famp, tau)
             xmax += _env_hi(f0, f1, fb2, famp, tau)
+        xmin = max(xmin, min(x0, x0 + tau * (v0 + 0.5 * alo * tau)))
+        sm = tau if ahi >= 0.0 else min(max(-v0 / ahi, 0.0), tau)
+        xmax = min(xmax, max(x0, x0 + sm * (v0 + 0.5 * ahi * sm)))
         good = xmin > lo_m and xmax < ok_hi
         if good and not xmax < hi_m:
             # no new maximum of x_f unless it is the step's end: x_f' > 0 throughout
@@ -644,16 +833,17 @@ def _lin_safe(t, y, a1, a2, c0, s0, c, lo, hi, top, tau_fix, tau_max):
                 vmin += _env_lo(n1, n2, nb3, na * nl, tau)
             if forced:
                 vmin += _env_lo(f1, f2, fb3, famp * w, tau)
+            vmin = max(vmin, v0 + alo * tau)
             good = apex and vmin > 0.0
-        if it == 0:
-            if good:
-                return tau
-            tau = tau_fix
-            continue
-        if it == 1:
+        if it == 0:  # tau_fix (most often the bound fails right there)
             if not good:
                 return 0.0
             tau_ok = tau_fix
+            tau = tau_max
+            continue
+        if it == 1:  # tau_max
+            if good:
+                return tau_max
         elif good:
             lo_t = tau
             tau_ok = tau
@@ -661,15 +851,6 @@ def _lin_safe(t, y, a1, a2, c0, s0, c, lo, hi, top, tau_fix, tau_max):
             hi_t = tau
         tau = math.sqrt(lo_t * hi_t)
     return tau_ok
-
-
-@njit(cache=True)
-def _step(t, y, f, h, mode, c, tol):
-    """A step of size h: exact in a linear regime (error 0), else Dormand-Prince."""
-    if c[_C_LIN] != 0.0:
-        y1 = _lin_step(t, y, h, c)
-        return y1, _accel(t + h, y1[0], y1[1], y1[2], y1[3], mode, c), 0.0
-    return _dopri_step(t, y, f, h, mode, c, tol)
 
 
 # ----------------------------------------------------------------------------------------
@@ -737,12 +918,27 @@ def _hermite(th, g0, g1, d0, d1):
     )
 
 
+@njit(cache=True, inline="always")
+def _glance_possible(kind, y0, f0, y1, f1, h, c, tol):
+    """Whether the interpolant of g can rise above zero inside the step (see ``_glance``).
+
+    It never exceeds max(g0, g1) + 4/27 (|d0| + |d1|) (its slope basis functions are
+    bounded by 4/27): most steps end here.
+    """
+    g0 = _g(kind, y0, c)
+    g1 = _g(kind, y1, c)
+    d0 = h * _gdot(kind, y0, f0, c)
+    d1 = h * _gdot(kind, y1, f1, c)
+    return max(g0, g1) + (4.0 / 27.0) * (abs(d0) + abs(d1)) > -_gtol(kind, c, tol)
+
+
 @njit(cache=True)
-def _glance(kind, t, y0, f0, y1, f1, h, mode, c, tol):
+def _glance(kind, t, y0, f0, y1, f1, h, mode, c, tol, a1, a2, c0, s0):
     """Detect a crossing that comes back within the step (g0 <= 0, g1 <= 0).
 
     Returns ``(s, y, f, g)`` with ``g > 0`` at ``t + s`` if the interpolant of g rises
-    above zero inside the step, else ``s = -1``.
+    above zero inside the step, else ``s = -1``. In a linear regime ``a1, a2, c0, s0`` are
+    the modal amplitudes and actuator phase at ``t`` (``_lin_modal``).
     """
     g0 = _g(kind, y0, c)
     g1 = _g(kind, y1, c)
@@ -772,7 +968,11 @@ def _glance(kind, t, y0, f0, y1, f1, h, mode, c, tol):
     if not (0.0 < th < 1.0) or _hermite(th, g0, g1, d0, d1) <= -gtol:
         return -1.0, y1, f1, g1
     s = th * h
-    ym, fm, _ = _step(t, y0, f0, s, mode, c, tol)
+    if c[_C_LIN] != 0.0:
+        ym = _lin_eval(t, y0, s, a1, a2, c0, s0, c)
+        fm = _accel(t + s, ym[0], ym[1], ym[2], ym[3], mode, c)
+    else:
+        ym, fm, _ = _dopri_step(t, y0, f0, s, mode, c, tol)
     gm = _g(kind, ym, c)
     if gm > 0.0:
         return s, ym, fm, gm
@@ -780,11 +980,12 @@ def _glance(kind, t, y0, f0, y1, f1, h, mode, c, tol):
 
 
 @njit(cache=True)
-def _locate(kind, t, y0, f0, y1, f1, h, mode, c, tol):
+def _locate(kind, t, y0, f0, y1, f1, h, mode, c, tol, a1, a2, c0, s0):
     """Locate the first crossing of event ``kind`` in a step of size ``h``.
 
     Requires ``g(y0) <= 0 < g(y1)``. Returns ``(s, y, f)`` with ``s`` in (0, h] just past
-    the root (``g > 0`` there), the state there and its derivative.
+    the root (``g > 0`` there), the state there and its derivative. In a linear regime
+    ``a1, a2, c0, s0`` are the modal amplitudes and actuator phase at ``t``.
     """
     g0 = _g(kind, y0, c)
     g1 = _g(kind, y1, c)
@@ -819,10 +1020,6 @@ def _locate(kind, t, y0, f0, y1, f1, h, mode, c, tol):
     apex = kind == _EV_APEX
     gxp = _gtol(_EV_TOUCH, c, tol)
     lin = c[_C_LIN] != 0.0
-    a1 = a2 = 0j
-    c0 = s0 = 0.0
-    if lin:
-        a1, a2, c0, s0 = _lin_modal(t, y0, c)
     for _ in range(80):
         if not (lo < s < hi):
             s = 0.5 * (lo + hi)
@@ -846,10 +1043,17 @@ def _locate(kind, t, y0, f0, y1, f1, h, mode, c, tol):
             if hi - lo < 1e-12:
                 break
         if gd > 0.0:
-            # Newton on the local quadratic model for position events (their second
-            # derivative is known), on the linear one for velocity events
+            # Newton on the local quadratic model: the second derivative of a position
+            # event is known; that of a velocity event (the foot's jerk) is a difference of
+            # the accelerations along the flow (Dormand-Prince steps only: one evaluation of
+            # the right-hand side saves most third trials)
             r = gs - 0.5 * gtol
             gdd = _gddot(kind, fs, c)
+            if not lin and (kind == _EV_ADV_EXIT or apex):
+                eps = 1e-5 * h
+                fe = _accel(t + s + eps, ys[0] + eps * ys[2], ys[1] + eps * ys[3],
+                            ys[2] + eps * fs[0], ys[3] + eps * fs[1], mode, c)  # fmt: skip
+                gdd = (fe[1] - fs[1]) / eps if kind == _EV_ADV_EXIT else (fs[1] - fe[1]) / eps
             disc = gd * gd - 2.0 * gdd * r
             s = s - (2.0 * r / (gd + math.sqrt(disc)) if disc > 0.0 else r / gd)
         else:
@@ -936,6 +1140,8 @@ def _context(row, meta):
     """Per-jump constants (``_C_*`` layout) from an input row and a command's meta."""
     c = np.zeros(_C_SIZE)
     c[_C_M] = row[ROW_M_MOTOR] + row[ROW_M_ROD]
+    c[_C_MINV] = 1.0 / c[_C_M]
+    c[_C_MFINV] = 1.0 / row[ROW_M_FOOT]
     c[_C_MMOT] = row[ROW_M_MOTOR]
     c[_C_MF] = row[ROW_M_FOOT]
     c[_C_KS] = row[ROW_K_SPRING]
@@ -1035,11 +1241,11 @@ def simulate_one(row, seg, meta, opts, rec, record):
         mode = MODE_CONTACT if c[_C_FSMAX] > 0.0 else MODE_FREE
         f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
     closed = opts[OPT_CLOSED] != 0.0
-    if closed:
-        _lin_prepare(mode, c)
     # steps of the closed form resolve the events: a fraction of the fastest period,
     # shrinking with the tolerance as Dormand-Prince steps would
     lin_theta = LIN_THETA * min(1.0, tol[0] / 1e-5) ** 0.2
+    if closed:
+        _lin_prepare(mode, c, lin_theta, hmax)
     # the closed form's steps are exact: only a recorded trajectory (plots) needs max_step
     lin_hmax = hmax if record else np.inf
 
@@ -1052,6 +1258,11 @@ def simulate_one(row, seg, meta, opts, rec, record):
     h = min(1e-4, hmax)
     n_steps = 0
     f_ok = True
+    # in a linear regime: the modal amplitudes and actuator phase of the current state,
+    # carried from step to step until the regime or the actuator segment changes
+    modal = False
+    a1 = a2 = 0j
+    c0 = s0 = 0.0
     while True:
         if n_steps >= max_steps:
             return np.nan, STATUS_STEP_LIMIT, n_steps, n_rec
@@ -1059,11 +1270,17 @@ def simulate_one(row, seg, meta, opts, rec, record):
         remaining = t_stop - t
         lin = c[_C_LIN] != 0.0
         safe = False
-        modal = False
-        a1 = a2 = 0j
-        c0 = s0 = 0.0
         if lin:
-            h_next = min(lin_theta / c[_C_LINW], hmax)
+            if not modal:
+                a1, a2, c0, s0 = _lin_modal(t, y, c)
+                modal = True
+            if mode == MODE_FREE and si >= nseg and flown and not record:
+                # the jump ends at touchdown, and until then the foot flies freely, below
+                # the centre of mass's highest point plus the range of its (damped)
+                # oscillation: once that is below the height, the height is final
+                if _free_ceiling(y, a1, c) < height:
+                    return height, STATUS_OK, n_steps, n_rec
+            h_next = c[_C_LINH]
             tau_max = min(remaining, lin_hmax)
             if tau_max > h_next:
                 # the longest step that provably contains no event (0 if none is longer)
@@ -1078,8 +1295,6 @@ def simulate_one(row, seg, meta, opts, rec, record):
                     # no flight inside a proved step (x_f stays below H_FLIGHT, or rises
                     # throughout): the step's end tells whether the foot has flown
                     top = min(top, H_FLIGHT)
-                a1, a2, c0, s0 = _lin_modal(t, y, c)
-                modal = True
                 tau = _lin_safe(t, y, a1, a2, c0, s0, c, lo, hi, top, h_next, tau_max)
                 if tau > h_next:
                     h_next = tau
@@ -1094,13 +1309,14 @@ def simulate_one(row, seg, meta, opts, rec, record):
             first, last = _EV_REENTER, _EV_RELEASE
         else:
             first, last = _EV_TOUCH, _EV_TOUCH
-        if safe:
-            y1 = _lin_eval(t, y, h_try, a1, a2, c0, s0, c)
-            f1 = f  # not needed unless the step turns out to be an ordinary one
+        if lin:  # exact closed-form step (error 0)
+            y1, b1, b2, c1, s1 = _lin_advance(t, y, h_try, a1, a2, c0, s0, c)
+            f1 = f  # after a proved step f is computed when (if) it is needed
             err = 0.0
-            for kind in range(first, last + 1):
-                if _g(kind, y1, c) > 0.0:  # only if rounding defeated the bound
-                    safe = False
+            if safe:
+                for kind in range(first, last + 1):
+                    if _g(kind, y1, c) > 0.0:  # only if rounding defeated the bound
+                        safe = False
             if not safe:
                 if not f_ok:
                     f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
@@ -1108,12 +1324,7 @@ def simulate_one(row, seg, meta, opts, rec, record):
         else:
             if not f_ok:
                 f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
-            if modal:  # an ordinary closed-form step: the modal amplitudes are at hand
-                y1 = _lin_eval(t, y, h_try, a1, a2, c0, s0, c)
-                f1 = _accel(t + h_try, y1[0], y1[1], y1[2], y1[3], mode, c)
-                err = 0.0
-            else:
-                y1, f1, err = _step(t, y, f, h_try, mode, c, tol)
+            y1, f1, err = _dopri_step(t, y, f, h_try, mode, c, tol)
         n_steps += 1
         if not math.isfinite(err):
             h = 0.25 * h_try
@@ -1135,19 +1346,21 @@ def simulate_one(row, seg, meta, opts, rec, record):
             if g0 > 0.0:
                 continue
             if _g(kind, y1, c) > 0.0:
-                s, ye, fe = _locate(kind, t, y, f, y1, f1, h_try, mode, c, tol)
+                s, ye, fe = _locate(kind, t, y, f, y1, f1, h_try, mode, c, tol, a1, a2, c0, s0)
+            elif not _glance_possible(kind, y, f, y1, f1, h_try, c, tol):
+                continue
             else:  # a crossing that comes back inside the step (glancing contact)
-                sm, ym, fm, _ = _glance(kind, t, y, f, y1, f1, h_try, mode, c, tol)
+                sm, ym, fm, _ = _glance(kind, t, y, f, y1, f1, h_try, mode, c, tol, a1, a2, c0, s0)
                 if sm < 0.0:
                     continue
-                s, ye, fe = _locate(kind, t, y, f, ym, fm, sm, mode, c, tol)
+                s, ye, fe = _locate(kind, t, y, f, ym, fm, sm, mode, c, tol, a1, a2, c0, s0)
             if s < s_end:
                 s_end, event, y1, f1 = s, kind, ye, fe
         # jump height: endpoint and interior maximum of x_f
         step_top = y1[1]
         if in_window:
             if y[3] > 0.0 and y1[3] < 0.0 and not safe:
-                _, ya, _ = _locate(_EV_APEX, t, y, f, y1, f1, s_end, mode, c, tol)
+                _, ya, _ = _locate(_EV_APEX, t, y, f, y1, f1, s_end, mode, c, tol, a1, a2, c0, s0)
                 step_top = max(step_top, ya[1])
             height = max(height, step_top)
         if si >= nseg and step_top >= H_FLIGHT:
@@ -1155,7 +1368,7 @@ def simulate_one(row, seg, meta, opts, rec, record):
         touchdown = si >= nseg and flown and y1[1] < 0.0
         t = t_stop if (landing and event == _EV_NONE) else t + s_end
         y, f = y1, f1
-        f_ok = not safe  # after a proved step f is computed when (if) it is needed
+        f_ok = not safe
         if not (math.isfinite(y[0]) and math.isfinite(y[1]) and math.isfinite(y[2])
                 and math.isfinite(y[3])):  # fmt: skip
             return np.nan, STATUS_NONFINITE, n_steps, n_rec
@@ -1163,8 +1376,9 @@ def simulate_one(row, seg, meta, opts, rec, record):
             mode = _switch(event, y, c)
             f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
             f_ok = True
+            modal = False
             if closed:
-                _lin_prepare(mode, c)
+                _lin_prepare(mode, c, lin_theta, hmax)
         elif landing:
             si += 1
             _set_segment(c, si, nseg, seg)
@@ -1175,8 +1389,11 @@ def simulate_one(row, seg, meta, opts, rec, record):
                 flown = True
             f = _accel(t, y[0], y[1], y[2], y[3], mode, c)
             f_ok = True
+            modal = False
             if closed:
-                _lin_prepare(mode, c)
+                _lin_prepare(mode, c, lin_theta, hmax)
+        elif lin:  # the same regime goes on: its modal amplitudes are at hand
+            a1, a2, c0, s0 = b1, b2, c1, s1
         if record:
             n_rec = _record(rec, n_rec, t, y, mode, c)
         if touchdown or si > nseg:

@@ -1228,6 +1228,34 @@ def test_height_is_highest_foot_position_in_the_window(command: str, params: dic
     )
 
 
+@pytest.mark.parametrize("command", COMMAND_NAMES)
+def test_a_flight_that_cannot_rise_any_more_ends_the_jump_with_the_same_height(
+    command: str,
+) -> None:
+    """The integrator ends a jump early once its height is final, bit for bit.
+
+    After the command, a foot in free flight stays below the centre of mass's apex plus the
+    range of its damped oscillation until the touchdown ends the jump; once that is below
+    the height reached, the kernel stops. A recorded trajectory runs on to the touchdown:
+    with ``max_step`` infinite both take the same steps up to the early end, so the heights
+    are identical and the early end takes fewer steps.
+    """
+    phi, params = random_parameters(12, seed=11)
+    rows = build_rows(Robot(), phi, params)
+    seg, meta = build_command(command).as_table()
+    opts = SolverSettings(max_step=math.inf).as_array()
+    rec = np.empty((20_000, _kernel.REC_SIZE))
+    shorter = 0
+    for row in rows:
+        h_early, st_early, n_early, _ = _kernel.simulate_one(row, seg, meta, opts, rec, False)
+        h_full, st_full, n_full, n_rec = _kernel.simulate_one(row, seg, meta, opts, rec, True)
+        assert st_early == st_full == _kernel.STATUS_OK and n_rec < rec.shape[0]
+        assert h_early == h_full
+        assert n_early <= n_full
+        shorter += n_early < n_full
+    assert shorter >= 10
+
+
 def test_height_window_closes_window_after_the_command_if_still_airborne() -> None:
     """Section 5: the window also closes ``window_after`` after the command, even mid-flight.
 
