@@ -28,10 +28,10 @@ import granbayes
 from granbayes import Experiment, InputError, load_experiment, load_jumps
 from granbayes._provenance import environment
 from granbayes.cli import staged_folder
+from granbayes.figures import source_label
 from granbayes.fitting import FitResult, FitSettings, data_hash, fit
 from granbayes.forces import terms_of
 from granbayes.report import markdown_table as _markdown_table
-from granbayes.report import source_label
 from granbayes.sampler import SamplerSettings
 from granbayes.stats import CI_PROB
 from granbayes.synthetic import REFERENCE_DATA as _REFERENCE_DATA

@@ -24,9 +24,9 @@ import _common as common
 import granbayes
 from granbayes import COMMAND_NAMES, InputError
 from granbayes.analysis import cell_experiment
+from granbayes.figures import plot_added_mass, plot_vs_kappa
 from granbayes.likelihood import SETTING_COLUMNS
 from granbayes.mechanics import MAX_STEP_S, integral_check, simulate_impulses
-from granbayes.plots import plot_added_mass, plot_vs_kappa
 from granbayes.priors import default_priors
 from granbayes.stats import (
     CI_PROB,

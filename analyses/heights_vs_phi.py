@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 import _common as common
-from granbayes.plots import plot_heights_vs_phi
+from granbayes.figures import plot_heights_vs_phi
 from granbayes.stats import cell_statistics
 
 NAME = "heights_vs_phi"

@@ -20,6 +20,7 @@ import pandas as pd
 
 import _common as common
 from granbayes import InputError
+from granbayes.figures import plot_misfit_maps, plot_valleys
 from granbayes.maps import (
     CD_MAX_KG_PER_M,
     K_RANGE_N_PER_M,
@@ -33,7 +34,6 @@ from granbayes.maps import (
     short,
     valley_table,
 )
-from granbayes.plots import plot_misfit_maps, plot_valleys
 from granbayes.stats import fmt_triple, interval
 
 NAME = "misfit_maps"

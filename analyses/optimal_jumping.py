@@ -28,6 +28,7 @@ import xarray as xr
 
 import _common as common
 from granbayes import InputError, load_fit
+from granbayes.figures import plot_delay_curves, plot_optimum_vs_frequency, plot_optimum_vs_phi
 from granbayes.optimal import (
     MAX_FAIL_FRACTION,
     N_NOISE,
@@ -42,7 +43,6 @@ from granbayes.optimal import (
     settings_grid,
 )
 from granbayes.optimal import describe_setting as describe
-from granbayes.plots import plot_delay_curves, plot_optimum_vs_frequency, plot_optimum_vs_phi
 from granbayes.stats import CI_PROB, fmt_triple, interval
 
 NAME = "optimal_jumping"

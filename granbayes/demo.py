@@ -83,7 +83,7 @@ def _write_figure(fig: Figure, path: Path) -> None:
 
 def _demo_jumps(out: Path, experiment: Experiment) -> None:
     """The five commands at ``DEMO_PHI`` with ``DEMO_PARAMS``: table, CSV and figure."""
-    from .plots import plot_jumps
+    from .figures import plot_jumps
 
     trajs = {
         c: simulate_trajectory(c, DEMO_PHI, DEMO_PARAMS, experiment=experiment)
@@ -108,7 +108,7 @@ def _demo_jumps(out: Path, experiment: Experiment) -> None:
 
 def _demo_hard_ground(out: Path, experiment: Experiment) -> None:
     """Single and stutter jump height against frequency on a rigid floor."""
-    from .plots import plot_hard_ground
+    from .figures import plot_hard_ground
 
     freqs = HARD_GROUND_FREQS_HZ
     table = pd.DataFrame(

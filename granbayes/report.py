@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 import tomllib
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -19,27 +19,14 @@ import xarray as xr
 from matplotlib.figure import Figure
 
 from . import datatree as gdt
-from . import stats
-from .experiment import COMMAND_NAMES
-from .forces import parameter
+from . import figures, stats
 
 __all__ = [
-    "data_label",
-    "markdown_table",
-    "source_label",
     "load_truth",
-    "plot_corner",
-    "plot_predictive",
-    "plot_parameters_vs_phi",
-    "write_fit_report",
-    "plot_residual_heatmap",
+    "markdown_table",
     "write_diagnosis_report",
+    "write_fit_report",
 ]
-
-#: Label and unit of the noise parameter; those of the force-term parameters are in the
-#: registry (:data:`granbayes.forces.TERMS`).
-_NOISE_LABELS: dict[str, tuple[str, str]] = {"sigma_mm": ("σ [mm]", "mm")}
-_COLORS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00")
 
 
 def load_truth(path: str | Path) -> dict[float, dict[str, float]]:
@@ -57,248 +44,6 @@ def load_truth(path: str | Path) -> dict[float, dict[str, float]]:
     """
     doc = tomllib.loads(Path(path).read_text())
     return {float(phi): dict(v) for phi, v in doc.get("phi", {}).items()}
-
-
-def data_label(dt: xr.DataTree) -> str:
-    """``"SYNTHETIC data (<generator>)"`` if the jumps say so in a ``source`` column, else ``""``.
-
-    Synthetic data sets mark every row (``source = "synthetic: <generator> seed=<n>"``);
-    every figure and summary of such data carries this label.
-
-    Parameters
-    ----------
-    dt : xarray.DataTree
-        A fit.
-
-    Returns
-    -------
-    str
-    """
-    obs = dt.observed_data.to_dataset()
-    if "source" not in obs.coords:
-        return ""
-    return source_label(obs["source"].values)
-
-
-def source_label(sources: Iterable[object]) -> str:
-    """``"SYNTHETIC data (<generator>)"`` if any of the ``source`` values is synthetic, else ``""``.
-
-    Parameters
-    ----------
-    sources : iterable
-        The ``source`` column of a jumps table (one value per jump).
-    """
-    synthetic = sorted({str(v) for v in sources if str(v).startswith("synthetic")})
-    if not synthetic:
-        return ""
-    return (
-        "SYNTHETIC data ("
-        + "; ".join(s.removeprefix("synthetic:").strip() for s in synthetic)
-        + ")"
-    )
-
-
-def _unit(name: str) -> str | None:
-    """Unit of a parameter (from the force-term registry), or None if it is unknown."""
-    if name in _NOISE_LABELS:
-        return _NOISE_LABELS[name][1]
-    try:
-        return parameter(name).unit
-    except KeyError:
-        return None
-
-
-def _label(name: str) -> str:
-    """Axis and table label of a parameter, e.g. ``"k2 [N/m²]"`` (from the registry)."""
-    if name in _NOISE_LABELS:
-        return _NOISE_LABELS[name][0]
-    try:
-        return parameter(name).label
-    except KeyError:
-        return f"{name} []"
-
-
-def plot_corner(
-    dt: xr.DataTree, phi: float, var_names: list[str], truth: Mapping[str, float] | None = None
-) -> Figure:
-    """Corner plot of the posterior at one volume fraction, with the truth if known.
-
-    Parameters
-    ----------
-    dt : xarray.DataTree
-        Fit result.
-    phi : float
-        Volume fraction.
-    var_names : list of str
-        Parameters to show.
-    truth : mapping, optional
-        True values (synthetic data) drawn as lines.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    import corner
-
-    post = dt.posterior.to_dataset().sel(phi=phi)
-    names = [n for n in var_names if n in post and np.all(np.isfinite(post[n].values))]
-    samples = np.column_stack([post[n].values.ravel() for n in names])
-    fig = Figure(figsize=(2.4 * len(names) + 1, 2.4 * len(names) + 1))
-    truths = None if truth is None else [truth.get(n, None) for n in names]
-    corner.corner(
-        samples,
-        fig=fig,
-        labels=[_label(n) for n in names],
-        quantiles=[0.05, 0.5, 0.95],
-        show_titles=True,
-        title_fmt=".3g",
-        truths=truths,
-        truth_color="#D55E00",
-        bins=30,
-        smooth=0.8,
-        # density and contours, not the ~3,000 draws as points (half the drawing time)
-        plot_datapoints=False,
-    )
-    title = f"Posterior at φ = {phi:g} (lines: 5%, 50%, 95%)"
-    if truth is not None:
-        title += "; orange: synthetic truth"
-    if data_label(dt):
-        title = f"{data_label(dt)}\n{title}"
-    fig.suptitle(title, y=1.0)
-    return fig
-
-
-def plot_predictive(dt: xr.DataTree, ci_prob: float = stats.CI_PROB) -> Figure:
-    """Jump height vs volume fraction per command: data and posterior predictive bands.
-
-    One panel per command; one colour per actuation frequency. Points: measured jumps;
-    dark band: the simulated height (force-law uncertainty); light band: a new jump
-    (simulated height plus scatter); both ``ci_prob`` equal-tailed.
-
-    Parameters
-    ----------
-    dt : xarray.DataTree
-        A fit with posterior predictive and observed data.
-    ci_prob : float
-        Probability of the bands.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    obs = dt.observed_data.to_dataset()
-    pp = dt.posterior_predictive.to_dataset()
-    phi = obs["phi"].values
-    command = obs["command"].values
-    freq = obs["freq_hz"].values if "freq_hz" in obs.coords else np.zeros(len(phi))
-    commands = [c for c in COMMAND_NAMES if c in set(command)]
-    freqs = np.unique(freq)
-    q = stats.eti_probs(ci_prob)
-    fig = Figure(figsize=(3.3 * len(commands), 3.6), layout="constrained")
-    axes = fig.subplots(1, len(commands), sharey=True, squeeze=False)[0]
-    rep = pp["height_mm"].values.reshape(-1, len(phi))
-    sim = pp["height_sim_mm"].values.reshape(-1, len(phi))
-    phis = np.unique(phi)
-    dphi = 0.0015 * (len(freqs) > 1)
-    for ax, cmd in zip(axes, commands, strict=True):
-        for j, f in enumerate(freqs):
-            color = _COLORS[j % len(_COLORS)]
-            off = (j - (len(freqs) - 1) / 2) * dphi
-            bands = []
-            for p in phis:
-                sel = (command == cmd) & (freq == f) & (phi == p)
-                if not np.any(sel):
-                    bands.append((np.nan,) * 5)
-                    continue
-                i = np.flatnonzero(sel)[0]
-                lo_r, _, hi_r = np.quantile(rep[:, i], q)
-                lo_s, med, hi_s = np.quantile(sim[:, i], q)
-                bands.append((lo_r, lo_s, med, hi_s, hi_r))
-            b = np.array(bands)
-            ax.fill_between(phis + off, b[:, 0], b[:, 4], color=color, alpha=0.15, lw=0)
-            ax.fill_between(phis + off, b[:, 1], b[:, 3], color=color, alpha=0.4, lw=0)
-            ax.plot(phis + off, b[:, 2], color=color, lw=1.2, label=f"{f:g} Hz")
-            sel = (command == cmd) & (freq == f)
-            ax.plot(
-                phi[sel] + off,
-                obs["height_mm"].values[sel],
-                "o",
-                ms=3,
-                color=color,
-                mec="k",
-                mew=0.3,
-            )
-        ax.set_title(cmd.replace("_", " "))
-        ax.set_xlabel("volume fraction φ [-]")
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("jump height H [mm]")
-    axes[0].legend(title="actuation", fontsize=8)
-    label = data_label(dt)
-    fig.suptitle(
-        (f"{label}\n" if label else "")
-        + "Posterior predictive check: points = measured jumps; dark band = simulated height, "
-        f"light band = new jump ({ci_prob:.0%} equal-tailed)",
-        fontsize=10,
-    )
-    return fig
-
-
-def plot_parameters_vs_phi(
-    dt: xr.DataTree,
-    var_names: list[str],
-    phi_c: float,
-    truth: Mapping[float, Mapping[str, float]] | None = None,
-    ci_prob: float = stats.CI_PROB,
-) -> Figure:
-    """Posterior median and ``ci_prob`` interval of each parameter against ``phi - phi_c``.
-
-    Parameters
-    ----------
-    dt : xarray.DataTree
-        A fit.
-    var_names : list of str
-        Parameters to plot.
-    phi_c : float
-        Critical packing fraction [-].
-    truth : mapping, optional
-        True values per volume fraction (synthetic data), drawn as crosses.
-    ci_prob : float
-        Probability of the intervals.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    post = dt.posterior.to_dataset()
-    names = [n for n in var_names if n in post]
-    phis = post["phi"].values
-    x = phis - phi_c
-    fig = Figure(figsize=(3.4 * len(names), 3.2), layout="constrained")
-    axes = fig.subplots(1, len(names), squeeze=False)[0]
-    q = stats.eti_probs(ci_prob)
-    for ax, n in zip(axes, names, strict=True):
-        v = post[n].values.reshape(-1, len(phis))
-        lo, med, hi = np.nanquantile(v, q, axis=0)
-        ax.errorbar(
-            x,
-            med,
-            yerr=[med - lo, hi - med],
-            fmt="o",
-            color=_COLORS[0],
-            capsize=3,
-            label=f"posterior ({ci_prob:.0%} ETI)",
-        )
-        if truth:
-            t = [truth.get(float(p), {}).get(n, np.nan) for p in phis]
-            ax.plot(x, t, "x", color=_COLORS[1], ms=8, mew=2, label="synthetic truth")
-        ax.axvline(0.0, color="0.5", lw=0.8, ls=":")
-        ax.set_xlabel("φ − φ_c [-]")
-        ax.set_ylabel(_label(n))
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    if data_label(dt):
-        fig.suptitle(data_label(dt), fontsize=10)
-    return fig
 
 
 def markdown_table(df: pd.DataFrame, floatfmt: str = ".4g", missing: str | None = None) -> str:
@@ -383,7 +128,7 @@ def write_fit_report(
     lines = [
         "# granbayes fit",
         "",
-        *([f"**{data_label(dt)}**", ""] if data_label(dt) else []),
+        *([f"**{figures.data_label(dt)}**", ""] if figures.data_label(dt) else []),
         f"- data: {dt.attrs.get('data_source', '')} (sha256 {dt.attrs['data_sha256'][:12]}…)",
         f"- terms: {', '.join(config['terms'])}; parametrisation across φ: "
         f"{config['phi_mode']}; noise: {config['noise']}",
@@ -455,34 +200,53 @@ def write_fit_report(
             markdown_table(uniqueness),
             "",
         ]
-    figs: dict[str, Figure] = {"predictive.png": plot_predictive(dt)}
-    figs["parameters_vs_phi.png"] = plot_parameters_vs_phi(dt, names, phi_c, truth)
+    label = figures.data_label(dt)
+    figs: dict[str, Figure] = {"predictive.png": figures.plot_predictive(dt)}
+    figs["parameters_vs_phi.png"] = figures.plot_parameters_vs_phi(dt, names, phi_c, truth)
     for phi in dt.posterior["phi"].values:
         t = truth.get(float(phi)) if truth else None
-        figs[f"corner_phi{phi:g}.png"] = plot_corner(dt, float(phi), names, t)
-    for name, fig in figs.items():
-        fig.savefig(out / name, dpi=120, bbox_inches="tight")
-        written.append(out / name)
-    label = data_label(dt)
+        figs[f"corner_phi{phi:g}.png"] = figures.plot_corner(dt, float(phi), names, t)
     if "prior" in dt.children:
-        written.append(
-            gdt.plot_prior_posterior(
-                dt,
-                names,
-                out / "prior_posterior.png",
-                labels=_prior_posterior_labels(dt, names),
-                log10=[n for n in names if _log_scale(dt, n)],
-                title=label,
-            )
+        figs["prior_posterior.png"] = figures.plot_prior_posterior(
+            dt,
+            names,
+            labels=_prior_posterior_labels(dt, names),
+            log10=[n for n in names if _log_scale(dt, n)],
+            title=label,
         )
     if np.all(np.isfinite(pit)):
-        written.append(gdt.plot_loo_pit(dt, out / "loo_pit.png", title=label))
+        figs["loo_pit.png"] = figures.plot_loo_pit(dt, title=label)
     if diagnostics_plots:
-        written += gdt.plot_diagnostics(dt, force_names, out)
+        figs["trace.png"] = figures.plot_trace(dt, force_names)
+        figs["rank.png"] = figures.plot_rank(dt, force_names)
+    written += _save_figures(figs, out)
     lines += ["## Figures", ""] + [f"![{p.stem}]({p.name})" for p in written if p.suffix == ".png"]
     summary_md = out / "summary.md"
     summary_md.write_text("\n".join(lines) + "\n")
     written += [out / "summary.csv", out / "diagnostics.csv", summary_md]
+    return written
+
+
+#: How each figure is saved: ``savefig`` keywords by file name (default: 120 dpi, tight).
+_SAVE = {
+    "prior_posterior.png": {"dpi": 110},
+    "loo_pit.png": {"dpi": 110},
+    "trace.png": {"dpi": 110},
+    "rank.png": {"dpi": 110},
+}
+
+
+def _save_figures(figs: Mapping[str, Figure], out: Path) -> list[Path]:
+    """Save figures as PNG files into ``out`` and release them (pyplot's too)."""
+    from matplotlib import pyplot as plt
+
+    written = []
+    for name, fig in figs.items():
+        fig.savefig(
+            out / name, format="png", **_SAVE.get(name, {"dpi": 120, "bbox_inches": "tight"})
+        )
+        plt.close(fig)
+        written.append(out / name)
     return written
 
 
@@ -496,9 +260,10 @@ def _prior_posterior_labels(dt: xr.DataTree, names: list[str]) -> dict[str, str]
     """Panel labels with units; log-scale parameters as ``log₁₀ k (k in N/m)``."""
     out = {}
     for n in names:
-        symbol = _label(n).split(" [")[0]
+        symbol = figures.param_label(n).split(" [")[0]
+        unit = figures.param_unit(n) or "-"
         out[n] = (
-            f"log₁₀ {symbol} ({symbol} in {_unit(n) or '-'})" if _log_scale(dt, n) else _label(n)
+            f"log₁₀ {symbol} ({symbol} in {unit})" if _log_scale(dt, n) else figures.param_label(n)
         )
     return out
 
@@ -510,99 +275,6 @@ def _truth_of(truth: Mapping[float, Mapping[str, float]], label: str) -> float:
     except ValueError:
         return float("nan")
     return float(truth.get(phi, {}).get(name, np.nan))
-
-
-_SETTING_UNITS = {"amplitude_mm": "mm", "delay_ms": "ms", "settle_periods": "T"}
-
-
-def _row_labels(residuals: pd.DataFrame) -> tuple[pd.Series, list[int]]:
-    """Heat-map row of every cell: its command, plus the settings that vary for it."""
-    varying = [
-        k
-        for k in _SETTING_UNITS
-        if k in residuals and residuals.groupby("command")[k].nunique().max() > 1
-    ]
-    labels = []
-    for r in residuals.to_dict("records"):
-        extra = [f"{r[k]:g} {_SETTING_UNITS[k]}" for k in varying]
-        labels.append(r["command"] + (f" ({', '.join(extra)})" if extra else ""))
-    order = [COMMAND_NAMES.index(c) for c in residuals["command"]]
-    return pd.Series(labels, index=residuals.index), order
-
-
-def plot_residual_heatmap(residuals: pd.DataFrame, title: str, z_threshold: float = 3.0) -> Figure:
-    """Mean residual (observed - simulated) per command x phi, one panel per frequency.
-
-    Cells are coloured by the mean residual [mm] (red: the model under-predicts) and
-    annotated with it and the z-score; cells with |z| above ``z_threshold`` are framed.
-
-    Parameters
-    ----------
-    residuals : pandas.DataFrame
-        Cells (:func:`granbayes.criticism.residual_table`).
-    title : str
-        Figure title.
-    z_threshold : float
-        Misfit threshold of |z|.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    rows, order = _row_labels(residuals)
-    residuals = residuals.assign(row=rows, order=order)
-    freqs = sorted(residuals["freq_hz"].unique())
-    phis = sorted(residuals["phi"].unique())
-    commands = list(dict.fromkeys(residuals.sort_values("order")["row"]))
-    vmax = max(5.0, float(np.nanmax(np.abs(residuals["mean_residual_mm"]))))
-    fig = Figure(
-        figsize=(1.25 * len(phis) * len(freqs) + 3.0, 0.55 * len(commands) + 1.8),
-        layout="constrained",
-    )
-    axes = fig.subplots(1, len(freqs), squeeze=False, sharey=True)[0]
-    image = None
-    for ax, f in zip(axes, freqs, strict=True):
-        grid = np.full((len(commands), len(phis)), np.nan)
-        zs = np.full_like(grid, np.nan)
-        sub = residuals[residuals["freq_hz"] == f]
-        for r in sub.itertuples():
-            i, j = commands.index(r.row), phis.index(r.phi)
-            grid[i, j], zs[i, j] = r.mean_residual_mm, r.z
-        image = ax.imshow(grid, cmap="RdBu_r", vmin=-vmax, vmax=vmax, aspect="auto")
-        for i in range(len(commands)):
-            for j in range(len(phis)):
-                if np.isnan(grid[i, j]):
-                    continue
-                strong = abs(zs[i, j]) > z_threshold
-                dark = abs(grid[i, j]) > 0.55 * vmax
-                ax.text(
-                    j,
-                    i,
-                    f"{grid[i, j]:+.1f}\nz={zs[i, j]:+.1f}",
-                    ha="center",
-                    va="center",
-                    fontsize=7,
-                    color="white" if dark else "black",
-                    fontweight="bold" if strong else "normal",
-                )
-                if strong:
-                    ax.add_patch(_frame(j, i))
-        ax.set_xticks(range(len(phis)), [f"{p:g}" for p in phis])
-        ax.set_yticks(range(len(commands)), [c.replace("_", " ") for c in commands])
-        ax.set_xlabel("volume fraction φ [-]")
-        ax.set_title(f"{f:g} Hz" if f else "")
-    fig.colorbar(image, ax=list(axes), label="mean residual: observed − simulated [mm]")
-    fig.suptitle(
-        title + f"\nmean residual [mm] and lack-of-fit z per cell (framed: |z| > {z_threshold:g})",
-        fontsize=10,
-    )
-    return fig
-
-
-def _frame(j: int, i: int):
-    from matplotlib.patches import Rectangle
-
-    return Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=2, ec="k")
 
 
 def write_diagnosis_report(record: Mapping, selected: xr.DataTree, out: Path) -> list[Path]:
@@ -626,7 +298,7 @@ def write_diagnosis_report(record: Mapping, selected: xr.DataTree, out: Path) ->
     """
     out = Path(out)
     rec = dict(record)
-    label = data_label(selected)
+    label = figures.data_label(selected)
     written = [out / "diagnosis.json"]
     (out / "diagnosis.json").write_text(json.dumps(rec, indent=2, default=float) + "\n")
     before = pd.DataFrame(rec["misfit"])
@@ -643,15 +315,15 @@ def write_diagnosis_report(record: Mapping, selected: xr.DataTree, out: Path) ->
     sel_terms = " + ".join(rec["selected"]["terms"])
     prefix = f"{label}: " if label else ""
     figs = {
-        "residuals_baseline.png": plot_residual_heatmap(
+        "residuals_baseline.png": figures.plot_residual_heatmap(
             before, f"{prefix}baseline {base_terms}", z
         ),
-        "residuals_selected.png": plot_residual_heatmap(after, f"{prefix}selected {sel_terms}", z),
-        "predictive_selected.png": plot_predictive(selected),
+        "residuals_selected.png": figures.plot_residual_heatmap(
+            after, f"{prefix}selected {sel_terms}", z
+        ),
+        "predictive_selected.png": figures.plot_predictive(selected),
     }
-    for name, fig in figs.items():
-        fig.savefig(out / name, dpi=120, bbox_inches="tight")
-        written.append(out / name)
+    written += _save_figures(figs, out)
     gdt.write_datatree(selected, out / "posterior_selected.nc")
     written.append(out / "posterior_selected.nc")
     lines = [f"# What the simulation gets wrong: {Path(rec.get('data_source', '')).name}", ""]

@@ -35,8 +35,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from . import datatree as gdt
-from . import stats
+from . import figures, stats
 from ._files import atomic_path, write_json, write_text
 from ._provenance import machine, package_versions
 from .campaign import CampaignResult, Task, run_campaign, spawn_seeds
@@ -476,14 +475,17 @@ def _write_outputs(
     write_json(work / "summary.json", summary)
     write_text(work / "summary.md", _summary_markdown(summary))
     if len(ranks):
+        from matplotlib import pyplot as plt
+
         pit, phis = stats.normalised_ranks(ranks)
         if all(len(v) >= 2 for v in pit.values()):
+            fig = figures.plot_sbc_ecdf(
+                pit,
+                phis,
+                seed=seed,
+                title=f"SBC of fit ({' + '.join(config.terms)}), {data_source or 'design'}",
+            )
             with atomic_path(work / "sbc_ecdf.png") as tmp:
-                gdt.plot_sbc_ecdf(
-                    pit,
-                    phis,
-                    tmp,
-                    seed=seed,
-                    title=f"SBC of fit ({' + '.join(config.terms)}), {data_source or 'design'}",
-                )
+                fig.savefig(tmp, dpi=110, format="png")
+            plt.close(fig)
     return summary

@@ -1,4 +1,4 @@
-"""The analysis modules of the package: granbayes.analysis, maps, optimal, mechanics, plots.
+"""The analysis modules of the package: granbayes.analysis, maps, optimal, mechanics, figures.
 
 Fast, seeded unit tests of what the scripts of ``analyses/`` are built from (the scripts
 themselves run end to end in tests/test_analyses.py). Posteriors here are small
@@ -21,10 +21,10 @@ from granbayes import (
     COMMAND_NAMES,
     Experiment,
     InputError,
+    figures,
     maps,
     mechanics,
     optimal,
-    plots,
     simulate,
     simulate_trajectory,
 )
@@ -215,9 +215,9 @@ def test_misfit_map_accepts_the_generating_law(rng: np.random.Generator) -> None
     assert len(maps.grid_table(m)) == m.k_sim_n_per_m.size * m.cd_kg_per_m.size
     assert set(maps.valley_table([m])["command"]) == set(maps.COMMANDS)
     assert len(maps.cell_table([m])) == 4
-    fig = plots.plot_misfit_maps(m, PHI_C, "misfit maps, SYNTHETIC")
+    fig = figures.plot_misfit_maps(m, PHI_C, "misfit maps, SYNTHETIC")
     assert isinstance(fig, Figure) and len(fig.axes) == 4  # two maps, overlay, colour bar
-    assert isinstance(plots.plot_valleys([m, m], PHI_C, "valleys, SYNTHETIC"), Figure)
+    assert isinstance(figures.plot_valleys([m, m], PHI_C, "valleys, SYNTHETIC"), Figure)
     assert maps.misfit_map(Experiment(), table, 0.7, grid, 5, rng) is None  # no cells there
 
 
@@ -267,9 +267,9 @@ def test_search_finds_the_best_setting_for_common_draws(rng: np.random.Generator
     assert shapes and all(s["best_delay_ms"] in grid.delays_ms for s in shapes)
     assert 0.0 <= optimal.robustness(res)["p_optimum_best"] <= 1.0
     for fig in (
-        plots.plot_optimum_vs_frequency([res], PHI_C, 12.0, "SYNTHETIC"),
-        plots.plot_delay_curves([res, res], measured(), PHI_C, "SYNTHETIC"),
-        plots.plot_optimum_vs_phi([res, res], PHI_C, "SYNTHETIC"),
+        figures.plot_optimum_vs_frequency([res], PHI_C, 12.0, "SYNTHETIC"),
+        figures.plot_delay_curves([res, res], measured(), PHI_C, "SYNTHETIC"),
+        figures.plot_optimum_vs_phi([res, res], PHI_C, "SYNTHETIC"),
     ):
         assert isinstance(fig, Figure)
     # the left panel of the delay curves shows negative heights (robot stays in the bed)
@@ -277,7 +277,7 @@ def test_search_finds_the_best_setting_for_common_draws(rng: np.random.Generator
     sunk = dataclasses.replace(
         res, settings=t.assign(**{c: t[c] - 40.0 for c in ("expected_mm", "lo_mm", "hi_mm")})
     )
-    ax_left = plots.plot_delay_curves([sunk], measured(), PHI_C, "SYNTHETIC").axes[0]
+    ax_left = figures.plot_delay_curves([sunk], measured(), PHI_C, "SYNTHETIC").axes[0]
     curve = optimal.delay_curve(sunk, *[sunk.settings.iloc[sunk.optimum][c] for c in AF])
     assert curve["lo_mm"].min() < 0.0
     assert ax_left.get_ylim()[0] <= curve["lo_mm"].min()
@@ -326,7 +326,7 @@ def test_impulse_of_a_simulated_jump_agrees_with_the_flux_quadrature() -> None:
     draws = {k: np.array([v, v]) for k, v in law.items()}
     imps = mechanics.simulate_impulses("stutter", 0.602, draws, Experiment())
     assert [i.total_mN_s for i in imps] == pytest.approx([imp.total_mN_s] * 2)
-    fig = plots.plot_added_mass(traj.data, Experiment(), 1.0, 0.602, "SYNTHETIC law")
+    fig = figures.plot_added_mass(traj.data, Experiment(), 1.0, 0.602, "SYNTHETIC law")
     assert len(fig.axes) == 3
 
 
@@ -347,12 +347,12 @@ def test_rigid_floor_sweep_power_and_refined_optimum() -> None:
 def test_heights_kappa_and_coefficient_figures(rng: np.random.Generator) -> None:
     table = synthetic_jumps(rng, {"k": 3000.0, "c_d": 20.0}, n=3)
     stats = gstats.cell_statistics(table)
-    fig = plots.plot_heights_vs_phi(table, stats, PHI_C, "heights, SYNTHETIC")
+    fig = figures.plot_heights_vs_phi(table, stats, PHI_C, "heights, SYNTHETIC")
     assert len(fig.axes) == 2  # one panel per frequency
     cells = stats.assign(
         kappa_median=0.5, kappa_lo=0.2, kappa_hi=0.9, y_median=stats["mean_mm"]
     ).assign(y_lo=lambda d: d["y_median"] - 1, y_hi=lambda d: d["y_median"] + 1)
-    fig = plots.plot_vs_kappa(cells, "y", "y [mm]", PHI_C, 2.0, "caption", "SYNTHETIC")
+    fig = figures.plot_vs_kappa(cells, "y", "y [mm]", PHI_C, 2.0, "caption", "SYNTHETIC")
     assert len(fig.axes) == 2
     intervals = pd.DataFrame(
         {
@@ -365,7 +365,7 @@ def test_heights_kappa_and_coefficient_figures(rng: np.random.Generator) -> None
         }
     )
     laws = [{"terms": ("depth",), "parameters": ("k",), "intervals": intervals}]
-    fig = plots.plot_coefficients_vs_phi(laws, [0.592, 0.632], PHI_C, "SYNTHETIC")
+    fig = figures.plot_coefficients_vs_phi(laws, [0.592, 0.632], PHI_C, "SYNTHETIC")
     assert fig.axes[0].get_yscale() == "log"
-    offsets = plots.command_offsets([0.592, 0.632], 0.0006)
+    offsets = figures.command_offsets([0.592, 0.632], 0.0006)
     assert offsets["single"] == pytest.approx(-0.0012) and offsets["stutter"] == 0.0

@@ -33,10 +33,11 @@ from granbayes.cli import EXIT_OK, main
 from granbayes.criticism import DiagnoseSettings
 from granbayes.errors import InputError
 from granbayes.experiment import load_batch_table
+from granbayes.figures import param_label
 from granbayes.fitting import _variable_attrs
 from granbayes.forces import TERMS, DefaultPrior, ForceLaw, ForceTerm, Parameter
 from granbayes.priors import NOISE_PARAMETERS, Prior, default_priors, load_priors, priors_toml
-from granbayes.report import _label, _prior_posterior_labels
+from granbayes.report import _prior_posterior_labels
 from granbayes.testing import energy_test_box, simulate_height_scipy
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
@@ -154,7 +155,7 @@ def test_granbayes_priors_command_sees_the_new_term(
 
 
 def test_report_labels_see_the_new_term(registered: Parameter) -> None:
-    assert _label("f_coh") == "f_coh [N]"
+    assert param_label("f_coh") == "f_coh [N]"
     dt = xr.DataTree()
     dt.attrs["priors"] = json.dumps({"f_coh": {"dist": "loguniform"}, "k": {"dist": "uniform"}})
     assert _prior_posterior_labels(dt, ["f_coh", "k"]) == {

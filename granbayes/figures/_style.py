@@ -1,0 +1,96 @@
+"""Shared styling of the figures: colours, labels with units, the SYNTHETIC data label."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import xarray as xr
+
+from ..forces import parameter
+
+#: Label and unit of the noise parameter; those of the force-term parameters are in the
+#: registry (:data:`granbayes.forces.TERMS`).
+_NOISE_LABELS: dict[str, tuple[str, str]] = {"sigma_mm": ("σ [mm]", "mm")}
+
+
+#: Colours of lines and bands (Okabe-Ito, colour-blind safe).
+COLORS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00")
+
+
+def data_label(dt: xr.DataTree) -> str:
+    """``"SYNTHETIC data (<generator>)"`` if the jumps say so in a ``source`` column, else ``""``.
+
+    Synthetic data sets mark every row (``source = "synthetic: <generator> seed=<n>"``);
+    every figure and summary of such data carries this label.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit.
+
+    Returns
+    -------
+    str
+    """
+    obs = dt.observed_data.to_dataset()
+    if "source" not in obs.coords:
+        return ""
+    return source_label(obs["source"].values)
+
+
+def source_label(sources: Iterable[object]) -> str:
+    """``"SYNTHETIC data (<generator>)"`` if any of the ``source`` values is synthetic, else ``""``.
+
+    Parameters
+    ----------
+    sources : iterable
+        The ``source`` column of a jumps table (one value per jump).
+    """
+    synthetic = sorted({str(v) for v in sources if str(v).startswith("synthetic")})
+    if not synthetic:
+        return ""
+    return (
+        "SYNTHETIC data ("
+        + "; ".join(s.removeprefix("synthetic:").strip() for s in synthetic)
+        + ")"
+    )
+
+
+def param_unit(name: str) -> str | None:
+    """Unit of a parameter (from the force-term registry), or None if it is unknown.
+
+    Parameters
+    ----------
+    name : str
+        A force-term parameter or ``sigma_mm``.
+
+    Returns
+    -------
+    str or None
+    """
+    if name in _NOISE_LABELS:
+        return _NOISE_LABELS[name][1]
+    try:
+        return parameter(name).unit
+    except KeyError:
+        return None
+
+
+def param_label(name: str) -> str:
+    """Axis and table label of a parameter, e.g. ``"k2 [N/m²]"`` (from the registry).
+
+    Parameters
+    ----------
+    name : str
+        A force-term parameter or ``sigma_mm``.
+
+    Returns
+    -------
+    str
+    """
+    if name in _NOISE_LABELS:
+        return _NOISE_LABELS[name][0]
+    try:
+        return parameter(name).label
+    except KeyError:
+        return f"{name} []"
