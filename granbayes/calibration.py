@@ -38,7 +38,7 @@ import pandas as pd
 from scipy import stats
 
 from .commands import COMMAND_NAMES
-from .criticism import DiagnoseSettings, diagnose
+from .criticism import Candidate, DiagnoseSettings, DiagnosisRecord, diagnose
 from .experiment import CommandSettings, Experiment, Robot
 from .sampler import ProgressInfo
 from .simulator import simulate
@@ -330,10 +330,9 @@ def diagnose_case(
                 "wall_time_s": time.perf_counter() - t0,
             }
         ]
-    rec = d.to_json()
+    rec = d.record
     misfit = d.residuals_before
-    round1 = [c for c in rec["candidates"] if c["round"] == 1]
-    sel = rec["selected"]
+    sel = rec.selected
     # the selected law against the baseline on a new run of the same experiment: the gain
     # a user would see on fresh data, free of the selection's optimism
     fresh = make_case(kind, case_seed, replicate=1).table
@@ -341,34 +340,28 @@ def diagnose_case(
     return [
         {
             **truth,
-            "verdict": rec["verdict"],
-            "added": "+".join(sel["added"]),
-            "indistinguishable": "+".join(
-                sorted({t["term"] for t in sel.get("indistinguishable", [])})
-            ),
-            "elpd_gain": sel["elpd_gain"],
-            "elpd_gain_se": sel["elpd_gain_se"],
-            "elpd_gain_cells": sel["elpd_gain_cells"],
-            "elpd_gain_cells_se": sel["elpd_gain_cells_se"],
+            "verdict": rec.verdict.value,
+            "added": "+".join(sel.added),
+            "indistinguishable": "+".join(sorted({t.term for t in sel.indistinguishable})),
+            "elpd_gain": sel.elpd_gain,
+            "elpd_gain_se": sel.elpd_gain_se,
+            "elpd_gain_cells": sel.elpd_gain_cells,
+            "elpd_gain_cells_se": sel.elpd_gain_cells_se,
             "gain_fresh": float(np.sum(diff)),
             "gain_fresh_se": float(np.sqrt(len(diff)) * np.std(diff, ddof=1)),
             "n_cells": len(misfit),
             "dof_min": float(misfit["dof"].min()) if "dof" in misfit else np.nan,
             "baseline_max_abs_z": float(misfit["z"].abs().max()),
-            "n_misfit_baseline": rec["n_misfit_cells"],
-            "n_residual_misfit": len(rec["residual_misfit"]),
-            "residual_max_abs_z": float(
-                max((abs(c["z_after"]) for c in sel["per_cell"]), default=0.0)
-            ),
-            "z_threshold": rec["rule"]["z_threshold"],
-            "family_alpha": rec["rule"]["family_alpha"],
-            "all_converged": rec["all_converged"],
-            "n_fits": len(rec["fits"]),
-            "n_reruns": int(sum(f["reruns"] for f in rec["fits"])),
-            "n_screened_out": sum(
-                c["method"].startswith("screened out") for c in rec["candidates"]
-            ),
-            "round1": _round1_json(round1),
+            "n_misfit_baseline": rec.n_misfit_cells,
+            "n_residual_misfit": len(rec.residual_misfit),
+            "residual_max_abs_z": float(max((abs(c.z_after) for c in sel.per_cell), default=0.0)),
+            "z_threshold": rec.rule.z_threshold,
+            "family_alpha": rec.rule.family_alpha,
+            "all_converged": rec.all_converged,
+            "n_fits": len(rec.fits),
+            "n_reruns": int(sum(f.reruns for f in rec.fits)),
+            "n_screened_out": sum(c.screened_out for c in rec.candidates),
+            "round1": _round1_json([c for c in rec.candidates if c.round == 1]),
             "sampler_steps": counter.steps,
             "wall_time_s": time.perf_counter() - t0,
         }
@@ -408,24 +401,24 @@ def diagnose_folder(
     table = load_jumps(folder, experiment)
     t0 = time.perf_counter()
     d = diagnose(experiment, table, config, seed=seed, data_source=str(folder), log=lambda *a: None)
-    rec = d.to_json()
+    rec = d.record
     fitted = [c for c in d.candidates if not c.screened_out]
     worst = min(fitted, key=lambda c: c.gain - 2.0 * c.gain_se, default=None)
     return [
         {
             "seed": int(seed),
-            "verdict": rec["verdict"],
-            "added": "+".join(rec["selected"]["added"]),
+            "verdict": rec.verdict.value,
+            "added": "+".join(rec.selected.added),
             "indistinguishable": "; ".join(
-                f"{t['selected']}~{t['term']} ({t['elpd_diff']:+.1f} ± {t['elpd_diff_se']:.1f})"
-                for t in rec["selected"]["indistinguishable"]
+                f"{t.selected}~{t.term} ({t.elpd_diff:+.1f} ± {t.elpd_diff_se:.1f})"
+                for t in rec.selected.indistinguishable
             ),
             "claim": _claim(rec),
-            "elpd_gain": rec["selected"]["elpd_gain"],
-            "elpd_gain_se": rec["selected"]["elpd_gain_se"],
-            "all_converged": rec["all_converged"],
-            "n_fits": len(rec["fits"]),
-            "n_reruns": int(sum(f["reruns"] for f in rec["fits"])),
+            "elpd_gain": rec.selected.elpd_gain,
+            "elpd_gain_se": rec.selected.elpd_gain_se,
+            "all_converged": rec.all_converged,
+            "n_fits": len(rec.fits),
+            "n_reruns": int(sum(f.reruns for f in rec.fits)),
             "n_screened_out": len(d.candidates) - len(fitted),
             "min_gain_vs_parent": np.nan if worst is None else worst.gain,
             "min_gain_vs_parent_se": np.nan if worst is None else worst.gain_se,
@@ -446,26 +439,27 @@ def diagnose_folder(
     ]
 
 
-def _claim(rec: Mapping) -> str:
+def _claim(rec: DiagnosisRecord) -> str:
     """What a diagnosis claims, independent of which of two tied terms scored higher.
 
     Per round, the added term together with the terms it is not distinguished from, as a
     sorted set: ``"{compaction} + {drag|viscous}"``.
     """
     ties: dict[int, set[str]] = {}
-    for t in rec["selected"].get("indistinguishable", []):
-        ties.setdefault(t["round"], set()).add(t["term"])
+    for t in rec.selected.indistinguishable:
+        ties.setdefault(t.round, set()).add(t.term)
     return " + ".join(
         "{" + "|".join(sorted({term} | ties.get(r, set()))) + "}"
-        for r, term in enumerate(rec["selected"]["added"], start=1)
+        for r, term in enumerate(rec.selected.added, start=1)
     )
 
 
-def _round1_json(candidates: Sequence[Mapping]) -> str:
+def _round1_json(candidates: Sequence[Candidate]) -> str:
+    """The round-1 candidates, as :func:`rederive_verdicts` reads them (JSON text)."""
     import json
 
     keep = ("term", "elpd_diff_vs_current", "elpd_diff_vs_current_se", "converged", "screen_gain")
-    return json.dumps([{k: c[k] for k in keep} for c in candidates])
+    return json.dumps([{k: c.to_json()[k] for k in keep} for c in candidates])
 
 
 def rederive_verdicts(

@@ -483,7 +483,7 @@ def test_single_jump_setting_flags(capsys) -> None:
 
 def test_diagnose_progress_labels_name_law_and_run() -> None:
     """diagnose hands every fit a progress callback labelled by law and run."""
-    from granbayes.criticism import FitBank
+    from granbayes.criticism._bank import FitBank
     from granbayes.sampler import ProgressInfo
 
     seen = []

@@ -24,6 +24,7 @@ from granbayes.cli import EXIT_UNCONVERGED, main
 from granbayes.criticism import (
     Candidate,
     DiagnoseSettings,
+    Estimate,
     decide,
     diagnose,
     distinguished,
@@ -73,7 +74,7 @@ def drag_case():
     Returns the table, the configuration, the Diagnosis (seed 2) and every fit it made
     (keyed by :func:`_fit_key`, reruns and held-out refits included).
     """
-    import granbayes.criticism as gc
+    import granbayes.criticism._bank as gc
 
     table = _table({"c_d": 150.0})
     config = DiagnoseSettings(candidates=("drag",), sampler=FAST, n_threads=1)
@@ -327,6 +328,7 @@ def _candidate(term: str, gain: float, se: float = 1.0, converged: bool = True) 
         rmse_mm=2.0,
         max_pareto_k=0.4,
         method="psis-loo",
+        estimate=Estimate.PSIS,
         converged=converged,
     )
 
@@ -570,6 +572,20 @@ def test_diagnosis_json_contract(drag_case, drag_report: Path) -> None:
     assert "## Fits the decision rests on" in report
 
 
+def test_diagnosis_json_round_trips_through_the_typed_record(drag_case) -> None:
+    """The typed record writes diagnosis.json and reads it back unchanged; the verdict is a
+    :class:`Verdict` (equal to its JSON string) and candidates carry their ``Estimate``."""
+    from granbayes.criticism import DiagnosisRecord, Estimate, Verdict
+
+    _, _, d, _ = drag_case
+    doc = json.loads(json.dumps(d.to_json(), default=float))
+    record = DiagnosisRecord.from_json(doc)
+    assert record.to_json() == doc
+    assert isinstance(d.verdict, Verdict) and d.verdict == doc["verdict"]
+    assert {c.estimate for c in record.candidates} <= set(Estimate)
+    assert all(c.screened_out == (c.estimate is Estimate.SCREENED_OUT) for c in d.candidates)
+
+
 def test_report_rerendered_from_saved_files_is_identical(drag_report: Path, tmp_path: Path):
     """The report reads only diagnosis.json and posterior_selected.nc: re-rendering it from
     the saved files gives the same report.md, diagnosis.json and tables."""
@@ -596,7 +612,7 @@ def test_the_rule_not_the_fits_decides(drag_case, monkeypatch: pytest.MonkeyPatc
     misfit is then left in place, so the verdict is "misfit_remains" and the residual
     misfit is the baseline's.
     """
-    import granbayes.criticism as gc
+    import granbayes.criticism._bank as gc
 
     table, config, extended, fits = drag_case
     calls = []
@@ -665,7 +681,7 @@ def test_cli_diagnose_unconverged_exits_4(tmp_path: Path, capsys) -> None:
 def test_diagnose_bad_input_is_refused_before_any_fit(tmp_path: Path, capsys, monkeypatch):
     """Unknown term, one ensemble and bad data: exit 2, one line, nothing written, no
     sampling."""
-    import granbayes.criticism as gc
+    import granbayes.criticism._bank as gc
 
     monkeypatch.setattr(gc, "fit", lambda *a, **k: pytest.fail("sampled despite bad input"))
     table = _table({})

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from granbayes import Experiment
-from granbayes.criticism import DiagnoseSettings, FitBank, _Pointwise
+from granbayes.criticism import DiagnoseSettings
+from granbayes.criticism._bank import FitBank, Pointwise
 from granbayes.testing import QUICK_SAMPLER, synthetic_jumps
 
 PHIS = (0.602, 0.622)
@@ -63,7 +64,7 @@ def test_reliable_psis_needs_no_fallback(bank: FitBank, monkeypatch: pytest.Monk
     """No jump flagged in either law: PSIS-LOO values, unchanged, and no refit."""
     _flag(bank, monkeypatch, {})
     monkeypatch.setattr(bank, "held_out", lambda req: pytest.fail("refit") if req else [])
-    (e_depth, e_drag), method = _Pointwise(bank)((DEPTH, DRAG))
+    (e_depth, e_drag), method = Pointwise(bank)((DEPTH, DRAG))
     assert method == "psis-loo"
     np.testing.assert_array_equal(e_depth, bank.loos[DEPTH]["elpd_i"])
     np.testing.assert_array_equal(e_drag, bank.loos[DRAG]["elpd_i"])
@@ -86,7 +87,7 @@ def test_exact_refits_are_paired_side_by_side_and_agree_with_psis(
     calls = []
     real = bank.held_out
     monkeypatch.setattr(bank, "held_out", lambda req: calls.append(len(req)) or real(req))
-    pw = _Pointwise(bank)
+    pw = Pointwise(bank)
     (e_depth, e_drag), method = pw((DEPTH, DRAG))
     assert method == "psis-loo + 2 exact refit(s)"
     assert calls == [4]
@@ -116,7 +117,7 @@ def test_kfold_of_one_volume_fraction_is_paired(
     calls = []
     real = bank.held_out
     monkeypatch.setattr(bank, "held_out", lambda req: calls.append(len(req)) or real(req))
-    (e_depth, e_drag), method = _Pointwise(bank)((DEPTH, DRAG))
+    (e_depth, e_drag), method = Pointwise(bank)((DEPTH, DRAG))
     assert method == f"psis-loo + 3-fold of phi = {PHIS[1]:g}"
     assert calls == [2 * 3]
     folds = bank.folds(PHIS[1])
