@@ -52,12 +52,14 @@ import difflib
 import io
 import json
 import math
+import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
+import numpy as np
 import pandas as pd
 
 from . import __version__
@@ -71,7 +73,7 @@ from .demo import (
     run_demo,
 )
 from .errors import InputError
-from .experiment import COMMAND_NAMES, Experiment, load_batch_table, load_experiment
+from .experiment import COMMAND_NAMES, Experiment, _load_batch, load_experiment
 from .forces import PARAMETER_NAMES, PARAMETERS, TERMS, parameter_term
 from .simulator import Status, simulate, simulate_table, simulate_trajectory
 from .synthetic import REFERENCE_DATA
@@ -241,6 +243,26 @@ def _check_target(path: Path, option: str) -> Path:
 def _write_csv(table: pd.DataFrame, path: Path) -> None:
     with atomic_path(path) as tmp:
         table.to_csv(tmp, index=False)
+
+
+def _csv_numbers(values: np.ndarray) -> list[str]:
+    """Floats as CSV cells, as ``DataFrame.to_csv`` writes them.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        float64 values.
+
+    Returns
+    -------
+    list of str
+        The shortest text that reads back as the same float (``repr``); NaN empty.
+    """
+    text = list(map(repr, values.tolist()))
+    missing = np.isnan(values)
+    if not missing.any():
+        return text
+    return np.where(missing, "", np.array(text, dtype=object)).tolist()
 
 
 def _write_figure(fig: Figure, path: Path) -> None:
@@ -436,7 +458,7 @@ def _simulate_batch(args: argparse.Namespace) -> int:
     shown = "the output" if to_stdout else str(args.out)
     _setting_values(args)
     experiment = _simulate_experiment(args)
-    table = load_batch_table(args.batch)
+    table, cells = _load_batch(args.batch)
     if "height_mm" in table.columns:
         print(
             f"granbayes: note: {args.batch} already has a height_mm column; "
@@ -444,11 +466,18 @@ def _simulate_batch(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     out = simulate_table(table, experiment, n_threads=args.threads)
+    # The input as read (each number as the file spells it) plus the results, built in bulk.
+    results = {
+        "height_mm": _csv_numbers(out["height_mm"].to_numpy()),
+        "status": out["status"].tolist(),
+    }
     if to_stdout:
-        out.to_csv(sys.stdout, index=False)
+        sys.stdout.write(cells.to_text(results))
         sys.stdout.flush()
     else:
-        _write_csv(out, args.out)
+        text = cells.to_text(results, line_end=os.linesep)
+        with atomic_path(args.out) as tmp, open(tmp, "w", encoding="utf-8", newline="") as f:
+            f.write(text)
     failed = int((out["status"] != Status.OK.label).sum())
     if failed:
         print(

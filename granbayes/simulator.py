@@ -148,7 +148,7 @@ class Heights:
     @property
     def status_labels(self) -> list[str]:
         """Status of each jump as text (``ok``, ``failed:...``)."""
-        return [Status(int(s)).label for s in self.status]
+        return _status_labels(self.status).tolist()
 
 
 @dataclass(frozen=True)
@@ -345,6 +345,100 @@ def simulate(
     )
 
 
+#: The command settings a row of a table may give (:class:`CommandSettings` fields).
+_TABLE_SETTINGS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(CommandSettings))
+
+#: Status labels indexed by status code (:attr:`Status.label`).
+_STATUS_LABELS = np.array(_kernel.STATUS_NAMES, dtype=object)
+
+
+def _status_labels(status: ArrayLike) -> np.ndarray:
+    """Status codes as their labels (``ok``, ``failed:<reason>``), by array lookup.
+
+    Parameters
+    ----------
+    status : array_like of int
+        :class:`Status` codes.
+
+    Returns
+    -------
+    numpy.ndarray
+        object array of str, the shape of ``status``.
+
+    Raises
+    ------
+    ValueError
+        If a code is not a :class:`Status`.
+    """
+    codes = np.asarray(status)
+    if codes.size and (codes.min() < 0 or codes.max() >= len(_STATUS_LABELS)):
+        bad = codes[(codes < 0) | (codes >= len(_STATUS_LABELS))].flat[0]
+        raise ValueError(f"{int(bad)} is not a valid Status")
+    return _STATUS_LABELS[codes]
+
+
+def _table_programs(
+    table: pd.DataFrame, defaults: CommandSettings
+) -> tuple[np.ndarray, list[CommandProgram]]:
+    """One command program per distinct command and settings of a table's rows.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        Column ``command``; optional columns of :data:`_TABLE_SETTINGS` (a missing column
+        or a NaN or non-numeric cell takes the default).
+    defaults : CommandSettings
+        The settings rows do not give.
+
+    Returns
+    -------
+    index : numpy.ndarray
+        int64, the program of each row.
+    programs : list of CommandProgram
+        In the order of their first row.
+    """
+    n = len(table)
+    # a row's command is str() of its cell: group by the cells, name each group once
+    codes, cells = pd.factorize(table["command"], use_na_sentinel=False)
+    names = [str(cell) for cell in cells]
+    keys = [codes]
+    for name in _TABLE_SETTINGS:
+        default = float(getattr(defaults, name))
+        if name in table:
+            values = pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float)
+            keys.append(np.where(np.isnan(values), default, values))
+        else:
+            keys.append(np.full(n, default))
+    # group ids: combine the keys' codes (numbered in order of first appearance) as digits
+    # of one number, renumbered whenever the next digit could overflow it
+    index = np.zeros(n, dtype=np.int64)
+    size = 1
+    for key in keys:
+        codes, uniques = pd.factorize(key)
+        if size * len(uniques) >= 2**62:
+            index, uniques_so_far = pd.factorize(index)
+            size = len(uniques_so_far)
+        index = index * len(uniques) + codes
+        size *= len(uniques)
+    index = pd.factorize(index)[0].astype(np.int64)
+    # groups are numbered in order of first appearance: a group's first row is where the
+    # group id exceeds every id before it
+    first = np.flatnonzero(index > np.maximum.accumulate(np.concatenate(([-1], index[:-1]))))
+    programs = [
+        build_command(
+            names[keys[0][row]],
+            CommandSettings(
+                **{
+                    name: float(key[row])
+                    for name, key in zip(_TABLE_SETTINGS, keys[1:], strict=True)
+                }
+            ),
+        )
+        for row in first.tolist()
+    ]
+    return index, programs
+
+
 def simulate_table(
     table: pd.DataFrame,
     experiment: Experiment | None = None,
@@ -390,25 +484,11 @@ def simulate_table(
             else np.full(n, default)
         )
         rows[:, j] = np.where(np.isnan(col), default, col)
-    # commands: one program per distinct (command, settings) combination
-    setting_names = ("amplitude_mm", "freq_hz", "delay_ms", "settle_periods")
-    programs: list[CommandProgram] = []
-    keys: dict[tuple, int] = {}
-    index = np.empty(n, dtype=np.int64)
-    for i, rec in enumerate(table.to_dict("records")):
-        values = []
-        for s in setting_names:
-            v = pd.to_numeric(rec.get(s, np.nan), errors="coerce")
-            values.append(float(getattr(exp.command, s)) if pd.isna(v) else float(v))
-        key = (str(rec["command"]), *values)
-        if key not in keys:
-            keys[key] = len(programs)
-            programs.append(build_command(key[0], CommandSettings(*values)))
-        index[i] = keys[key]
+    index, programs = _table_programs(table, exp.command)
     res = simulate_rows(rows, programs, index, options=options, n_threads=n_threads)
     out = table.copy()
     out["height_mm"] = res.height_mm
-    out["status"] = res.status_labels
+    out["status"] = _status_labels(res.status)
     return out
 
 

@@ -27,7 +27,7 @@ from granbayes.cli import (
 from granbayes.datatree import read_datatree
 from granbayes.experiment import COMMAND_NAMES, Experiment, load_experiment
 from granbayes.sampler import ProgressInfo
-from granbayes.simulator import simulate
+from granbayes.simulator import Heights, Status, simulate, simulate_table
 from granbayes.synthetic import write_experiment
 from granbayes.testing import synthetic_jumps
 
@@ -226,6 +226,78 @@ def test_batch_keeps_extra_columns_and_threads(
     assert float(result["height_mm"].iloc[1]) == pytest.approx(float(expected.height_mm[0]))
 
 
+def test_batch_output_is_the_input_as_written_plus_results(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Cells are written back as the file spells them (stripped), quoted where needed."""
+    table = write(
+        tmp_path / "in.csv",
+        'command, phi ,k,c_d,note\nsingle, 0.612 ,3000,,"a, b"\nstutter,6e-1,4E3,5.,"say ""hi"""\n',
+    )
+    out_csv = tmp_path / "out.csv"
+    code, _, err = run(capsys, "simulate", "--batch", str(table), "--out", str(out_csv))
+    assert code == EXIT_OK, err
+    lines = out_csv.read_text().splitlines()
+    assert lines[0] == "command,phi,k,c_d,note,height_mm,status"
+    assert lines[1].startswith('single,0.612,3000,,"a, b",')
+    assert lines[2].startswith('stutter,6e-1,4E3,5.,"say ""hi""",')
+    result = pd.read_csv(out_csv, keep_default_na=False)
+    assert list(result["note"]) == ["a, b", 'say "hi"']
+    expected = simulate("stutter", 0.6, {"k": 4000.0, "c_d": 5.0}).height_mm[0]
+    assert float(result["height_mm"].iloc[1]) == float(expected)
+    assert lines[2].endswith(f",{float(expected)!r},ok")
+
+    # plain files are copied line by line; height_mm and status columns are replaced
+    plain = write(tmp_path / "plain.csv", "status,command,phi,k,height_mm\nx,single,0.6,1e3,7\n")
+    code, out, err = run(capsys, "simulate", "--batch", str(plain), "--out", "-")
+    assert code == EXIT_OK, err
+    height = float(simulate("single", 0.6, {"k": 1000.0}).height_mm[0])
+    assert out == f"status,command,phi,k,height_mm\nok,single,0.6,1e3,{height!r}\n"
+
+
+def test_batch_rows_equal_single_jumps(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Rows grouped into command programs (per-row settings, empty cells: the defaults)
+    give the heights of the same jumps simulated one by one, bit for bit."""
+    rng = np.random.default_rng(7)
+    n = 40
+    table = pd.DataFrame(
+        {
+            "command": rng.choice(COMMAND_NAMES, n),
+            "phi": rng.uniform(0.59, 0.63, n),
+            "k": rng.uniform(1e3, 1e4, n),
+            "c_d": rng.uniform(0, 100, n),
+            "freq_hz": rng.choice([8.0, 12.0, np.nan], n),
+            "delay_ms": rng.choice([30.0, np.nan], n),
+            "settle_periods": rng.choice([1.0, 2.0], n),
+        }
+    )
+    experiment = Experiment().replace(freq_hz=9.0, amplitude_mm=15.0)
+    result = simulate_table(table, experiment, n_threads=1)
+    for row in table.itertuples():
+        settings = {"settle_periods": row.settle_periods}
+        settings |= {} if math.isnan(row.freq_hz) else {"freq_hz": row.freq_hz}
+        settings |= {} if math.isnan(row.delay_ms) else {"delay_ms": row.delay_ms}
+        jump = simulate(
+            row.command,
+            row.phi,
+            {"k": row.k, "c_d": row.c_d},
+            experiment=experiment.replace(**settings),
+        )
+        assert result["height_mm"].iloc[row.Index] == jump.height_mm[0], row
+        assert result["status"].iloc[row.Index] == Status(int(jump.status[0])).label
+    assert str(result["status"].dtype) == "str"
+
+
+def test_status_labels_by_lookup() -> None:
+    """Labels of every status code as :attr:`Status.label`; an unknown code is refused."""
+    codes = np.array([status.value for status in Status] * 2, dtype=np.int8)
+    heights = Heights(np.zeros(codes.size), codes, np.zeros(codes.size, dtype=np.int64))
+    assert heights.status_labels == [Status(int(code)).label for code in codes]
+    for bad in (-1, len(Status)):
+        with pytest.raises(ValueError, match="not a valid Status"):
+            _ = Heights(np.zeros(1), np.array([bad], dtype=np.int8), np.zeros(1)).status_labels
+
+
 # ----------------------------------------------------------------------------------------
 # Bad input: exit code 2, one line naming file, row and column, nothing written
 # ----------------------------------------------------------------------------------------
@@ -247,6 +319,68 @@ def test_nonfinite_cell_in_batch(tmp_path: Path, capsys: pytest.CaptureFixture[s
     table = write(tmp_path / "nan_cell.csv", "command,phi,k\nsingle,0.6,3000\nsingle,0.6,inf\n")
     code, out, err = run(capsys, "simulate", "--batch", str(table), "--out", str(tmp_path / "o"))
     assert_one_error_line(code, out, err, "nan_cell.csv", "row 2", "column 'k'", "finite")
+
+
+@pytest.fixture(scope="module")
+def large_batch_text() -> str:
+    """A 60,000-row batch table (all five commands, per-row settings), as CSV text."""
+    rng = np.random.default_rng(11)
+    n = 60_000
+    table = pd.DataFrame(
+        {
+            "command": rng.choice(COMMAND_NAMES, n),
+            "phi": rng.uniform(0.592, 0.632, n),
+            "k": rng.uniform(1e3, 1e4, n),
+            "c_d": rng.uniform(0, 100, n),
+            "r_unload": rng.uniform(1, 50, n),
+            "freq_hz": rng.choice([8.0, 10.0, 12.0], n),
+            "note": rng.choice(["a", "b"], n),
+        }
+    )
+    return table.to_csv(index=False)
+
+
+@pytest.mark.parametrize(
+    ("column", "value", "fragment"),
+    [
+        ("c_d", "1_000", "expected a number, got '1_000'"),
+        ("k", "inf", "expected a finite number, got 'inf'"),
+        ("phi", "", "empty cell, expected a number"),
+        ("r_unload", "0.5", "got '0.5', must be >= 1"),
+        ("freq_hz", "fast", "expected a number, got 'fast'"),
+        ("command", "hop", "unknown command 'hop'"),
+        (None, "extra", "8 fields, but the header has 7"),
+    ],
+)
+def test_bad_cell_deep_in_a_large_batch(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    large_batch_text: str,
+    column: str | None,
+    value: str,
+    fragment: str,
+) -> None:
+    """A bad cell at row 50,000 of 60,000 (a later one in an earlier column too): exit 2,
+    one line naming the file, that row and column, nothing written."""
+    lines = large_batch_text.splitlines()
+    header = lines[0].split(",")
+
+    def spoil(row: int, name: str | None, text: str) -> None:
+        cells = lines[row].split(",")  # data row r is line r (the header is line 0)
+        if name is None:
+            cells.append(text)
+        else:
+            cells[header.index(name)] = text
+        lines[row] = ",".join(cells)
+
+    spoil(50_000, column, value)
+    spoil(55_000, "command", "later")
+    table = write(tmp_path / "large.csv", "\n".join(lines) + "\n")
+    out_csv = tmp_path / "out.csv"
+    code, out, err = run(capsys, "simulate", "--batch", str(table), "--out", str(out_csv))
+    where = "large.csv, row 50000" + ("" if column is None else f", column '{column}'")
+    assert_one_error_line(code, out, err, where, fragment)
+    assert list(tmp_path.iterdir()) == [table]
 
 
 def test_negative_mass_in_toml(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -2,14 +2,24 @@
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import difflib
+import io
 import math
+import random
+import tempfile
+from collections.abc import Sequence
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+import granbayes.experiment as experiment_module
 from granbayes.errors import InputError
 from granbayes.experiment import (
     BATCH_EXPERIMENT_COLUMNS,
@@ -336,6 +346,26 @@ def test_jumps_whitespace_bom_and_blank_lines(tmp_path: Path) -> None:
     assert jumps["height_mm"].tolist() == [61.5, 70.0]
 
 
+@pytest.mark.parametrize("pandas_cells", [0, 10**9])
+def test_jumps_line_breaks_of_any_kind(tmp_path: Path, pandas_cells: int) -> None:
+    """CR LF and a lone CR break lines as LF does (rows are counted the same), with or
+    without a byte-order mark, whichever parser reads the numbers."""
+    rows = ["phi,command,height_mm", "0.58,single,61.5", "0.6,preload,70"]
+    frames = []
+    with mock.patch.object(experiment_module, "_PANDAS_MIN_CELLS", pandas_cells):
+        for newline in ("\n", "\r\n", "\r"):
+            for mark in (b"", b"\xef\xbb\xbf"):
+                file = tmp_path / f"jumps{len(frames)}.csv"
+                file.write_bytes(mark + newline.join(rows).encode())
+                frames.append(load_jumps(file))
+                file.write_bytes(mark + newline.join([*rows, "0.6,hop,1"]).encode())
+                with pytest.raises(InputError) as error:
+                    load_jumps(file)
+                assert_located(error, file, 3, "command")
+    for frame in frames[1:]:
+        pd.testing.assert_frame_equal(frame, frames[0])
+
+
 def test_jumps_trailing_empty_unnamed_column_dropped(tmp_path: Path) -> None:
     text = "phi,command,height_mm,\n0.58,single,61.5,\n"
     jumps = load_jumps(write(tmp_path / "jumps.csv", text))
@@ -611,3 +641,341 @@ def test_force_registry_docstring_examples() -> None:
     import granbayes.forces
 
     assert doctest.testmod(granbayes.forces).failed == 0
+
+
+# --------------------------------------------------------------------------------------
+# Bulk checks against a per-cell reference
+# --------------------------------------------------------------------------------------
+#
+# The loaders check whole columns in bulk (granbayes.experiment, "The same checks for whole
+# columns"). The reference below is the plain per-cell algorithm, written out here on its
+# own: the csv module record by record, every cell through float(). On random small tables
+# with random bad cells, both must name the same first bad cell with the same message, or
+# give the same values.
+
+#: Numeric columns of the generated tables: (lower bound, bound allowed, required cells).
+REFERENCE_NUMBERS: dict[str, dict[str, tuple[float, bool, bool]]] = {
+    "batch": {
+        "phi": (0.0, False, True),
+        "k": (0.0, True, False),
+        "c_d": (0.0, True, False),
+        "r_unload": (1.0, True, False),
+        "m_motor": (0.0, False, False),
+        "freq_hz": (0.0, False, False),
+        "delay_ms": (0.0, True, False),
+    },
+    "jumps": {
+        "phi": (0.0, False, True),
+        "height_mm": (-math.inf, False, True),
+        "freq_hz": (0.0, False, False),
+        "settle_periods": (0.0, True, False),
+    },
+}
+REFERENCE_REQUIRED = {"batch": ("command", "phi", "k"), "jumps": ("phi", "command", "height_mm")}
+REFERENCE_OPTIONAL = {
+    "batch": ("c_d", "r_unload", "m_motor", "freq_hz", "delay_ms", "note"),
+    "jumps": ("trial", "freq_hz", "settle_periods", "note"),
+}
+
+
+def reference_number(text: str) -> float | None:
+    """A cell as a number: float(), but never with an underscore."""
+    if "_" in text:
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def reference_cell(kind: str, name: str, text: str) -> tuple[object, str | None]:
+    """One cell's value and problem, by the rules of docs/data-format.md, spelled out."""
+    if name == "command":
+        if text in COMMAND_NAMES:
+            return text, None
+        if not text:
+            return text, f"empty cell; valid values: {', '.join(COMMAND_NAMES)}"
+        close = difflib.get_close_matches(text, COMMAND_NAMES, n=1)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        return text, f"unknown command '{text}'{hint}; valid values: {', '.join(COMMAND_NAMES)}"
+    if name == "trial":
+        if not text:
+            return None, None
+        number = reference_number(text)
+        if number is None or not math.isfinite(number) or number != int(number):
+            return None, f"expected an integer, got '{text}'"
+        if not -(2**63) <= number < 2**63:
+            return None, f"expected an integer of at most 64 bits, got '{text}'"
+        return int(number), None
+    if name not in REFERENCE_NUMBERS[kind]:
+        return text, None  # a text column
+    lower, closed, required = REFERENCE_NUMBERS[kind][name]
+    if not text:
+        return math.nan, ("empty cell, expected a number" if required else None)
+    number = reference_number(text)
+    if number is None:
+        return math.nan, f"expected a number, got '{text}'"
+    if not math.isfinite(number):
+        return number, f"expected a finite number, got '{text}'"
+    if name == "phi":
+        if not 0.0 < number < 1.0:
+            return number, f"got '{text}', must be in the open interval (0, 1)"
+    elif not (number >= lower if closed else number > lower):
+        return number, f"got '{text}', must be {'>=' if closed else '>'} {lower:g}"
+    return number, None
+
+
+def reference_load(kind: str, text: str) -> tuple:
+    """What loading ``text`` must give: ("error", row, column, message) or ("ok", columns)."""
+    reader = csv.reader(io.StringIO(text, newline=""), strict=True)
+    header: list[str] | None = None
+    header_line = 0
+    records = []
+    line_end = 0
+    try:
+        for fields in reader:
+            start, line_end = line_end + 1, reader.line_num
+            stripped = [cell.strip() for cell in fields]
+            if not any(stripped):
+                continue
+            if header is None:
+                header, header_line = stripped, start
+            else:
+                records.append((start - header_line, stripped))
+    except csv.Error as err:
+        row = line_end + 1 - header_line if header is not None else None
+        return ("error", row, None, f"malformed CSV: {err}")
+    assert header is not None and records, "the generator always writes a header and a row"
+    problems = []
+    columns: dict[str, list] = {name: [] for name in header if name}
+    for row, fields in records:
+        if len(fields) != len(header):
+            problems.append(
+                (row, -1, None, f"{len(fields)} fields, but the header has {len(header)}")
+            )
+            fields = (fields + [""] * len(header))[: len(header)]
+        for position, (name, cell) in enumerate(zip(header, fields, strict=True)):
+            if not name:
+                if cell:
+                    message = f"value '{cell}' in column {position + 1}, which has no header name"
+                    problems.append((row, position, None, message))
+                continue
+            value, problem = reference_cell(kind, name, cell)
+            columns[name].append(value)
+            if problem is not None:
+                problems.append((row, position, name, problem))
+    if problems:
+        row, _, column, message = min(problems, key=lambda problem: problem[:2])
+        return ("error", row, column, message)
+    if kind == "jumps":  # rows without a command setting take the experiment's
+        for name in ("freq_hz", "settle_periods"):
+            default = getattr(CommandSettings(), name)
+            if name in columns:
+                columns[name] = [default if math.isnan(v) else v for v in columns[name]]
+    return ("ok", {name: [repr(value) for value in values] for name, values in columns.items()})
+
+
+def loaded(kind: str, file: Path, header: list[str]) -> tuple:
+    """What the loader gives, in the form of :func:`reference_load`."""
+    try:
+        frame = load_batch_table(file) if kind == "batch" else load_jumps(file)
+    except InputError as err:
+        return ("error", err.row, err.column, err.message)
+    columns = {}
+    for name in (name.strip() for name in header):
+        if not name:
+            continue
+        values = frame[name].tolist()
+        if name == "trial":
+            values = [None if value is pd.NA else int(value) for value in values]
+        elif name in REFERENCE_NUMBERS[kind]:
+            values = [float(value) for value in values]
+        columns[name] = [repr(value) for value in values]
+    return ("ok", columns)
+
+
+#: Cells of numeric columns: numbers in many spellings, and what is not one.
+NUMBER_SPELLINGS = (
+    *("0.6", ".5", "5.", "+0.25", "3000", "1e3", "1E-2", "0", "-0", "12.5", "0.612"),
+    *("\uff10.\uff16", "\u0661\u0662"),  # fullwidth 0.6, Arabic-Indic 12: float() takes them
+    *("", "abc", "1_000", "nan", "NaN", "inf", "-inf", "Infinity", "1e400", "-1", "1.5"),
+    *("1e", "--1", "0x10", "e5", ".", "1e+", "-", "+.5e-3", "1.2.3", "1,5"),
+    *("1e19", "9223372036854775807", "-9223372036854775808", "1.7976931348623159e308"),
+)
+#: The bad cells the bulk checks could most easily get wrong.
+TRICKY_SPELLINGS = (
+    "1_000",
+    "1_0.5",
+    "inf",
+    "-Infinity",
+    "1e400",
+    "nan",
+    "",
+    "-1",
+    "0",
+    "1e19",
+    "1\n2",
+    "1,5",
+)
+COMMAND_SPELLINGS = (*COMMAND_NAMES, "hop", "Single", "", "stuter", "delayed")
+TEXT_SPELLINGS = ("a", "b c", "", "1_000", "x,y", 'say "hi"', "two\nlines")
+
+
+class Pick:
+    """Random choices for the table generator: from hypothesis (``draw``) or a seeded
+    ``random.Random`` (``rng``)."""
+
+    def __init__(self, draw: st.DrawFn | None = None, rng: random.Random | None = None):
+        self.draw, self.rng = draw, rng
+
+    def below(self, n: int) -> int:
+        """An integer in [0, n)."""
+        return self.draw(st.integers(0, n - 1)) if self.draw else self.rng.randrange(n)
+
+    def choice(self, options: Sequence[str]) -> str:
+        """One of ``options``."""
+        return options[self.below(len(options))]
+
+    def chance(self, one_in: int) -> bool:
+        """True once in ``one_in``."""
+        return self.below(one_in) == 0
+
+    def uniform(self, low: float, high: float) -> float:
+        """A float in [low, high]."""
+        if self.draw:
+            return self.draw(st.floats(low, high))
+        return self.rng.uniform(low, high)
+
+
+def good_cell(kind: str, name: str, pick: Pick) -> str:
+    """A cell the rules accept in column ``name``."""
+    if name == "command":
+        return pick.choice(COMMAND_NAMES)
+    if name == "trial":
+        return pick.choice(["", "1", "2", "3.0", "-0", "1e2"])
+    if name == "phi":
+        if pick.chance(3):
+            return pick.choice(["0.6", ".5", "+0.25", "5E-1", "\uff10.\uff16"])
+        return repr(pick.uniform(0.01, 0.99))
+    if not name:
+        return ""
+    if name not in REFERENCE_NUMBERS[kind]:
+        return pick.choice(["", "a", "b c", "7"])
+    if not REFERENCE_NUMBERS[kind][name][2] and pick.chance(4):
+        return ""  # not given
+    if pick.chance(3):
+        return pick.choice(["3000", "1e3", "12.5", "5.", "1.5", "+2", "1E1"])
+    return repr(pick.uniform(1.0, 1e6))
+
+
+def bad_cell(kind: str, name: str, pick: Pick) -> str:
+    """A cell for column ``name``, most of them bad."""
+    if name == "command":
+        return pick.choice(COMMAND_SPELLINGS[len(COMMAND_NAMES) :])
+    if name == "note":
+        return pick.choice(TEXT_SPELLINGS)
+    if not name:
+        return "x"
+    way = pick.below(4)
+    if way == 0:
+        return pick.choice(TRICKY_SPELLINGS)
+    if way == 1:
+        return pick.choice(NUMBER_SPELLINGS)
+    if way == 2:
+        if pick.chance(3):
+            return pick.choice(["inf", "-inf", "nan", "0.0", "-0.0", "1e+300", "5e-324"])
+        return repr(pick.uniform(-2.0, 2.0) * 10 ** pick.below(8))
+    return "".join(pick.choice("0123456789.eE+-_ ") for _ in range(1 + pick.below(5)))
+
+
+def random_table(pick: Pick) -> tuple[str, list[str], str]:
+    """A small CSV table (kind, header, text): good cells, a few bad ones at random places,
+    and random quoting, padding, blank lines and rows of the wrong length."""
+    kind = pick.choice(["batch", "jumps"])
+    optional = [name for name in REFERENCE_OPTIONAL[kind] if pick.chance(2)]
+    names = [*REFERENCE_REQUIRED[kind], *optional] + ([""] if pick.chance(2) else [])
+    for index in range(len(names) - 1, 0, -1):  # shuffle
+        other = pick.below(index + 1)
+        names[index], names[other] = names[other], names[index]
+    n_rows = 1 + pick.below(6)
+    table = [[good_cell(kind, name, pick) for name in names] for _ in range(n_rows)]
+    for _ in range(pick.below(4)):
+        row, column = pick.below(n_rows), pick.below(len(names))
+        table[row][column] = bad_cell(kind, names[column], pick)
+    quoting, padding, irregular = pick.chance(2), pick.chance(2), pick.chance(2)
+
+    def written(text: str) -> str:
+        if padding and pick.chance(2):
+            text = f" {text}\t"
+        if any(c in text for c in ',"\n') and not quoting:
+            text = text.replace(",", ";").replace('"', "'").replace("\n", " ")
+        if quoting and (pick.chance(2) or any(c in text for c in ',"\n')):
+            text = '"' + text.replace('"', '""') + '"'
+        return text
+
+    lines = [",".join(names)]
+    for cells in table:
+        cells = [written(text) for text in cells]
+        change = pick.below(12) if irregular else 2
+        if change == 0:
+            cells.append("extra")
+        elif change == 1 and len(cells) > 1:
+            cells.pop()
+        if irregular and pick.chance(3):
+            lines.append(pick.choice(["", ",,", ",,,,", " , "]))  # blank lines
+        lines.append(",".join(cells))
+    if irregular and pick.chance(2):
+        lines.insert(0, "")
+    newline = pick.choice(["\n", "\r\n"])
+    return kind, names, newline.join(lines) + (newline if pick.chance(2) else "")
+
+
+def check_against_reference(kind: str, header: list[str], text: str, folder: Path) -> None:
+    """Load ``text`` (as ``folder/table.csv``) with numeric columns parsed by pandas'
+    reader wherever it applies, and by float() alone (the path of small columns and of
+    other pandas versions); both must give what the per-cell reference gives."""
+    expected = reference_load(kind, text.replace("\r\n", "\n"))
+    file = folder / "table.csv"
+    file.write_bytes(text.encode("utf-8"))
+    for min_cells in (0, 10**9):
+        with mock.patch.object(experiment_module, "_PANDAS_MIN_CELLS", min_cells):
+            assert loaded(kind, file, header) == expected, (min_cells, text)
+
+
+@given(case=st.composite(lambda draw: random_table(Pick(draw=draw)))())
+@settings(max_examples=200)
+def test_bulk_checks_name_the_cell_the_per_cell_rules_name(
+    case: tuple[str, list[str], str],
+) -> None:
+    """The first bad cell in file order and its message, or every value, as cell by cell
+    (hypothesis: tables it shrinks to the smallest failing one)."""
+    with tempfile.TemporaryDirectory() as folder:
+        check_against_reference(*case, Path(folder))
+
+
+def test_bulk_checks_on_many_random_tables(tmp_path: Path) -> None:
+    """The same on 1000 seeded random tables (uniform choices: every spelling of
+    :data:`NUMBER_SPELLINGS` and :data:`TRICKY_SPELLINGS` lands in every kind of column)."""
+    rng = random.Random(20261126)
+    for _ in range(1000):
+        check_against_reference(*random_table(Pick(rng=rng)), tmp_path)
+
+
+@pytest.mark.parametrize("pandas_cells", [0, 10**9])
+def test_number_cells_parse_as_float_does(pandas_cells: int) -> None:
+    """Each cell of a column as :func:`float` parses it (``_`` refused), whichever parser;
+    every spelling first, last and between plain numbers."""
+    spellings = sorted({*NUMBER_SPELLINGS, *TRICKY_SPELLINGS, "1,5", " 1", "1\n2", "1e-400"})
+    columns = [[text] for text in spellings] + [[text, "1.5", "2"] for text in spellings]
+    columns += [["1.5", "2", text] for text in spellings] + [spellings, spellings[::-1]]
+    with mock.patch.object(experiment_module, "_PANDAS_MIN_CELLS", pandas_cells):
+        for texts in columns:
+            values, empty, refused = experiment_module._number_cells(list(texts))
+            for text, value, is_empty, is_refused in zip(
+                texts, values, empty, refused, strict=True
+            ):
+                number = reference_number(text)
+                assert is_empty == (text == ""), text
+                assert is_refused == (bool(text) and number is None), text
+                expected = math.nan if number is None else number
+                assert repr(float(value)) == repr(expected), text
