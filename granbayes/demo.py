@@ -13,10 +13,10 @@ import os
 import re
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
-from matplotlib.figure import Figure
 
 from ._files import atomic_path
 from .commands import COMMAND_NAMES
@@ -24,6 +24,9 @@ from .experiment import Experiment, load_experiment
 from .forces import PARAMETERS
 from .simulator import simulate_table, simulate_trajectory
 from .synthetic import REFERENCE_DATA
+
+if TYPE_CHECKING:  # matplotlib is imported where a figure is drawn: a faster start-up
+    from matplotlib.figure import Figure
 
 __all__ = [
     "DEMO_PARAMS",
