@@ -24,8 +24,8 @@ import _common as common
 import granbayes
 from granbayes import COMMAND_NAMES, InputError
 from granbayes.analysis import cell_experiment
+from granbayes.commands import SETTINGS as SETTING_COLUMNS
 from granbayes.figures import plot_added_mass, plot_vs_kappa
-from granbayes.likelihood import SETTING_COLUMNS
 from granbayes.mechanics import MAX_STEP_S, integral_check, simulate_impulses
 from granbayes.priors import default_priors
 from granbayes.stats import (

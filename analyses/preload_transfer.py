@@ -26,8 +26,8 @@ from matplotlib.figure import Figure
 import _common as common
 from granbayes import simulate
 from granbayes.analysis import cell_experiment
+from granbayes.commands import SETTINGS as SETTING_COLUMNS
 from granbayes.figures import COMMAND_COLORS, COMMAND_MARKERS
-from granbayes.likelihood import SETTING_COLUMNS
 from granbayes.stats import CI_PROB, interval, mean_discrepancy, posterior_draws
 
 NAME = "preload_transfer"

@@ -57,7 +57,8 @@ import granbayes
 import granbayes.cli
 import granbayes.experiment
 import granbayes.simulator
-from granbayes.experiment import COMMAND_NAMES, Experiment
+from granbayes.commands import COMMAND_NAMES
+from granbayes.experiment import Experiment
 from granbayes.forces import typical_ranges
 from granbayes.simulator import build_rows, simulate, simulate_rows
 
@@ -144,8 +145,7 @@ def api_rows(
     table: pd.DataFrame, groups: list[tuple[str, dict[str, float], np.ndarray]]
 ) -> tuple[np.ndarray, list, np.ndarray]:
     """Integrator rows, programs and program index of every jump (for ``simulate_rows``)."""
-    from granbayes.commands import build_command
-    from granbayes.experiment import CommandSettings
+    from granbayes.commands import CommandSettings, build_command
 
     params = {name: table[name].to_numpy() for name in typical_ranges()}
     rows = build_rows(Experiment().robot, table["phi"].to_numpy(), params)

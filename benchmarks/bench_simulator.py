@@ -49,8 +49,8 @@ import numpy as np
 import scipy
 
 import granbayes
-from granbayes.commands import CommandProgram, build_command
-from granbayes.experiment import COMMAND_NAMES, Robot
+from granbayes.commands import COMMAND_NAMES, CommandProgram, build_command
+from granbayes.experiment import Robot
 from granbayes.forces import typical_ranges
 from granbayes.simulator import SolverSettings, Status, build_rows, simulate_rows
 from granbayes.testing import simulate_height_scipy

@@ -30,11 +30,17 @@ import importlib.metadata as _metadata
 from typing import TYPE_CHECKING
 
 from ._deprecated import warn_alias as _warn_alias
-from .commands import CommandProgram, Segment, build_command
+from .commands import (
+    COMMAND_NAMES,
+    COMMANDS,
+    Command,
+    CommandProgram,
+    CommandSettings,
+    Segment,
+    build_command,
+)
 from .errors import InputError
 from .experiment import (
-    COMMAND_NAMES,
-    CommandSettings,
     Experiment,
     Robot,
     load_batch_table,
@@ -123,7 +129,9 @@ def __dir__() -> list[str]:
 
 
 __all__ = [
+    "COMMANDS",
     "COMMAND_NAMES",
+    "Command",
     "PARAMETER_NAMES",
     "TERMS",
     "CommandComparison",

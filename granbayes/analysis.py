@@ -25,8 +25,8 @@ from collections.abc import Mapping
 
 import pandas as pd
 
+from .commands import SETTINGS as SETTING_COLUMNS
 from .experiment import Experiment
-from .likelihood import SETTING_COLUMNS
 
 __all__ = [
     "cell_experiment",

@@ -37,9 +37,9 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from .commands import COMMAND_NAMES
+from .commands import COMMAND_NAMES, COMMANDS, CommandSettings
 from .criticism import Candidate, DiagnoseSettings, DiagnosisRecord, diagnose
-from .experiment import CommandSettings, Experiment, Robot
+from .experiment import Experiment, Robot
 from .sampler import ProgressInfo
 from .simulator import simulate
 
@@ -105,7 +105,8 @@ DESIGN_RANGES: dict[str, Any] = {
     "sigma_mm": (1.5, 3.0),
     "amplitude_mm": (16.0, 20.0),
 }
-_HELD = ("delayed_stutter", "delayed_stutter_preload")
+#: The commands with a hold (the pause a pause-stiffened bed relaxes in).
+_HELD = tuple(c.name for c in COMMANDS.values() if c.uses)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -64,6 +64,7 @@ import pandas as pd
 
 from . import __version__
 from ._files import atomic_path, staged_folder
+from .commands import COMMAND_NAMES
 from .demo import (
     DEMO_PARAMS,
     DEMO_PHI,
@@ -73,7 +74,7 @@ from .demo import (
     run_demo,
 )
 from .errors import InputError
-from .experiment import COMMAND_NAMES, Experiment, _load_batch, load_experiment
+from .experiment import Experiment, _load_batch, load_experiment
 from .forces import PARAMETER_NAMES, PARAMETERS, TERMS, parameter_term
 from .simulator import Status, simulate, simulate_table, simulate_trajectory
 from .synthetic import REFERENCE_DATA

@@ -29,6 +29,7 @@ from typing import NoReturn
 import numpy as np
 import pandas as pd
 
+from .commands import SETTINGS, CommandSettings, command_names
 from .errors import InputError
 from .forces import PARAMETER_NAMES, registered_parameters
 
@@ -36,8 +37,6 @@ __all__ = [
     "BATCH_EXPERIMENT_COLUMNS",
     "BATCH_FORCE_COLUMNS",
     "BATCH_REQUIRED_FORCE_COLUMNS",
-    "COMMAND_NAMES",
-    "CommandSettings",
     "Experiment",
     "G",
     "Robot",
@@ -48,15 +47,6 @@ __all__ = [
 
 #: Gravitational acceleration [m/s^2].
 G = 9.81
-
-#: The five jump commands, in the order used everywhere (tables, figures, arrays).
-COMMAND_NAMES: tuple[str, ...] = (
-    "single",
-    "preload",
-    "stutter",
-    "delayed_stutter",
-    "delayed_stutter_preload",
-)
 
 
 @dataclass(frozen=True)
@@ -98,43 +88,6 @@ class Robot:
     def f0_hz(self) -> float:
         """Resonant frequency ``sqrt(k_spring / M) / (2 pi)`` of the leg [Hz]."""
         return math.sqrt(self.k_spring / self.m_upper) / (2.0 * math.pi)
-
-
-@dataclass(frozen=True)
-class CommandSettings:
-    """Actuator settings shared by the jump commands (units as in ``experiment.toml``).
-
-    Parameters
-    ----------
-    amplitude_mm : float
-        Actuator amplitude ``A`` [mm] (half the stroke).
-    freq_hz : float
-        Actuator frequency [Hz].
-    delay_ms : float
-        Hold of the ``delayed_stutter`` command [ms].
-    settle_periods : float
-        Hold of the ``delayed_stutter_preload`` command [periods].
-    """
-
-    amplitude_mm: float = 20.0
-    freq_hz: float = 10.0
-    delay_ms: float = 50.0
-    settle_periods: float = 3.0
-
-    @property
-    def amplitude(self) -> float:
-        """Amplitude [m]."""
-        return self.amplitude_mm * 1e-3
-
-    @property
-    def period(self) -> float:
-        """Period ``1 / freq`` [s]."""
-        return 1.0 / self.freq_hz
-
-    @property
-    def delay(self) -> float:
-        """Delay [s]."""
-        return self.delay_ms * 1e-3
 
 
 @dataclass(frozen=True)
@@ -274,7 +227,7 @@ def _force_ranges() -> dict[str, _Range]:
 
 
 #: The per-row command-setting columns of ``jumps.csv``, in output order.
-_JUMP_SETTING_COLUMNS: tuple[str, ...] = ("freq_hz", "amplitude_mm", "delay_ms", "settle_periods")
+_JUMP_SETTING_COLUMNS: tuple[str, ...] = SETTINGS
 
 _JUMP_REQUIRED: tuple[str, ...] = ("phi", "command", "height_mm")
 _BATCH_REQUIRED: tuple[str, ...] = ("command", "phi")
@@ -1498,7 +1451,7 @@ def load_jumps(path: str | Path, experiment: Experiment | None = None) -> pd.Dat
     table.require(_JUMP_REQUIRED)
     converted: dict[str, object] = {
         "phi": table.floats("phi", _FRACTION, required=True),
-        "command": table.choices("command", COMMAND_NAMES),
+        "command": table.choices("command", command_names()),
         "height_mm": table.floats("height_mm", _FINITE, required=True),
     }
     if "trial" in table.columns:
@@ -1570,7 +1523,7 @@ def _load_batch(path: str | Path) -> tuple[pd.DataFrame, _CsvTable]:
                 column=name,
             )
     converted: dict[str, object] = {
-        "command": table.choices("command", COMMAND_NAMES),
+        "command": table.choices("command", command_names()),
         "phi": table.floats("phi", _FRACTION, required=True),
     }
     for name, allowed in ranges.items():

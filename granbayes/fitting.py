@@ -34,7 +34,8 @@ from . import stats
 from ._deprecated import alias_getattr
 from ._provenance import environment
 from ._search import drive, nelder_mead
-from .experiment import COMMAND_NAMES, Experiment
+from .commands import COMMAND_NAMES
+from .experiment import Experiment
 from .forces import PARAMETERS, terms_of
 from .likelihood import (
     JumpModel,

@@ -32,8 +32,8 @@ import numpy as np
 import pandas as pd
 from scipy.special import gammaln
 
-from .commands import CommandProgram, build_command
-from .experiment import CommandSettings, Experiment
+from .commands import SETTINGS, CommandProgram, CommandSettings, build_command
+from .experiment import Experiment
 from .forces import PARAMETERS, TERMS, terms_of
 from .priors import Prior, default_priors
 from .simulator import SolverSettings, build_rows, simulate_rows
@@ -44,7 +44,6 @@ __all__ = [
     "NoiseFamily",
     "Observations",
     "PhiMode",
-    "SETTING_COLUMNS",
     "SigmaMode",
     "evaluate_models",
 ]
@@ -56,9 +55,8 @@ NoiseFamily = Literal["normal", "student_t"]
 #: The scatter ``sigma_mm``: one per volume fraction, or one for all.
 SigmaMode = Literal["per_phi", "global"]
 
-#: Columns that, with ``phi`` and ``command``, define one simulation.
-SETTING_COLUMNS = ("amplitude_mm", "freq_hz", "delay_ms", "settle_periods")
-_CONFIG_COLUMNS = ("phi", "command", *SETTING_COLUMNS)
+#: Columns that define one simulation: the volume fraction, the command and its settings.
+_CONFIG_COLUMNS = ("phi", "command", *SETTINGS)
 
 
 @dataclass(frozen=True)
@@ -96,7 +94,7 @@ class Observations:
         key = pd.MultiIndex.from_frame(configs)
         config_of_obs = key.get_indexer(pd.MultiIndex.from_frame(table[list(_CONFIG_COLUMNS)]))
         programs = [
-            build_command(r.command, CommandSettings(*(getattr(r, s) for s in SETTING_COLUMNS)))
+            build_command(r.command, CommandSettings(**{s: getattr(r, s) for s in SETTINGS}))
             for r in configs.itertuples()
         ]
         return cls(table, configs, np.asarray(config_of_obs, dtype=np.int64), programs)

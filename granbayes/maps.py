@@ -59,6 +59,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from .commands import COMMANDS as COMMAND_REGISTRY
 from .experiment import Experiment
 from .simulator import simulate
 from .stats import interval
@@ -84,13 +85,7 @@ __all__ = [
 #: The two commands whose valleys are compared by default.
 COMMANDS: tuple[str, str] = ("preload", "delayed_stutter_preload")
 #: Command settings that define a cell of each command (besides phi).
-SETTINGS: dict[str, tuple[str, ...]] = {
-    "single": ("freq_hz", "amplitude_mm"),
-    "preload": ("freq_hz", "amplitude_mm"),
-    "stutter": ("freq_hz", "amplitude_mm"),
-    "delayed_stutter": ("freq_hz", "amplitude_mm", "delay_ms"),
-    "delayed_stutter_preload": ("freq_hz", "amplitude_mm", "settle_periods"),
-}
+SETTINGS: dict[str, tuple[str, ...]] = {c.name: c.settings for c in COMMAND_REGISTRY.values()}
 #: A grid point is acceptable if |sim - mean| <= TOLERANCE_SE standard errors in every cell.
 TOLERANCE_SE = 2.0
 #: Default k range [N/m] and c_d maximum [kg/m].

@@ -30,11 +30,11 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from .commands import CommandProgram, build_command
+from .commands import COMMAND_NAMES, COMMANDS, CommandProgram, CommandSettings, build_command
+from .commands import SETTINGS as SETTING_COLUMNS
 from .errors import InputError
-from .experiment import COMMAND_NAMES, CommandSettings, Experiment
+from .experiment import Experiment
 from .forces import PARAMETER_NAMES
-from .likelihood import SETTING_COLUMNS
 from .simulator import build_rows, simulate_rows
 from .stats import CI_PROB, eti_probs, interval, p_greater, posterior_draws
 
@@ -167,9 +167,10 @@ def setting_table(grid: SettingsGrid, measured: pd.DataFrame) -> pd.DataFrame:
         for freq in grid.freqs_hz:
             for amp in grid.amplitudes_mm:
                 base = {"command": command, "amplitude_mm": amp, "freq_hz": freq}
-                if command == "delayed_stutter":
+                uses = COMMANDS[command].uses  # its own setting, searched over its grid
+                if "delay_ms" in uses:
                     recs += [{**base, "delay_ms": d} for d in grid.delays_ms]
-                elif command == "delayed_stutter_preload":
+                elif "settle_periods" in uses:
                     recs += [{**base, "settle_periods": s} for s in grid.settle_periods]
                 else:
                     recs.append(base)

@@ -38,8 +38,9 @@ import numpy as np
 import pandas as pd
 
 from . import stats
-from .experiment import COMMAND_NAMES
-from .likelihood import SETTING_COLUMNS, JumpModel, Observations
+from .commands import COMMAND_NAMES
+from .commands import SETTINGS as SETTING_COLUMNS
+from .likelihood import JumpModel, Observations
 from .saved import SavedFit, as_saved_fit
 
 __all__ = ["Prediction", "predict"]

@@ -29,10 +29,12 @@ import xarray as xr
 
 from . import datatree as gdt
 from . import stats
+from .commands import SETTINGS as SETTING_COLUMNS
+from .commands import CommandSettings
 from .errors import InputError
-from .experiment import CommandSettings, Experiment, Robot
+from .experiment import Experiment, Robot
 from .fitting import FitSettings, part_models
-from .likelihood import SETTING_COLUMNS, JumpModel
+from .likelihood import JumpModel
 from .priors import Prior
 
 __all__ = ["SavedFit", "as_saved_fit", "load_fit"]

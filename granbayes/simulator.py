@@ -27,8 +27,8 @@ from numpy.typing import ArrayLike
 
 from . import _kernel
 from ._deprecated import alias_getattr
-from .commands import CommandProgram, build_command
-from .experiment import CommandSettings, Experiment, Robot
+from .commands import CommandProgram, CommandSettings, build_command
+from .experiment import Experiment, Robot
 from .forces import PARAMETER_NAMES, PARAMETERS, parameter_term
 
 __all__ = [

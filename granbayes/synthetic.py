@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .experiment import COMMAND_NAMES, Experiment
+from .commands import COMMAND_NAMES
+from .experiment import Experiment
 from .simulator import SolverSettings, simulate
 
 __all__ = ["REFERENCE_DATA", "make_jumps", "write_experiment"]

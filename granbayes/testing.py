@@ -83,8 +83,8 @@ import xarray as xr
 from scipy.integrate import solve_ivp
 from scipy.optimize import OptimizeResult, brentq
 
-from .commands import CommandProgram, build_command
-from .experiment import COMMAND_NAMES, Experiment
+from .commands import COMMAND_NAMES, CommandProgram, build_command
+from .experiment import Experiment
 from .forces import PARAMETERS, Parameter
 from .sampler import SamplerSettings
 from .simulator import SolverSettings

@@ -24,8 +24,9 @@ from granbayes.cli import (
     atomic_path,
     main,
 )
+from granbayes.commands import COMMAND_NAMES
 from granbayes.datatree import read_datatree
-from granbayes.experiment import COMMAND_NAMES, Experiment, load_experiment
+from granbayes.experiment import Experiment, load_experiment
 from granbayes.sampler import ProgressInfo
 from granbayes.simulator import Heights, Status, simulate, simulate_table
 from granbayes.synthetic import write_experiment

@@ -21,11 +21,10 @@ from hypothesis import strategies as st
 
 import granbayes.experiment as experiment_module
 from granbayes.errors import InputError
+from granbayes.commands import COMMAND_NAMES, CommandSettings
 from granbayes.experiment import (
     BATCH_EXPERIMENT_COLUMNS,
     BATCH_FORCE_COLUMNS,
-    COMMAND_NAMES,
-    CommandSettings,
     Experiment,
     Robot,
     load_batch_table,

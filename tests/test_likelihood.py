@@ -15,7 +15,8 @@ import pytest
 import scipy.stats
 
 from granbayes import Experiment, InputError, SolverSettings
-from granbayes.likelihood import SETTING_COLUMNS, JumpModel, Observations
+from granbayes.commands import SETTINGS as SETTING_COLUMNS
+from granbayes.likelihood import JumpModel, Observations
 from granbayes.priors import Prior, default_priors, load_priors
 
 EXPERIMENT = Experiment()

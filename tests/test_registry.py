@@ -215,3 +215,57 @@ def test_the_physics_is_still_needed(registered: Parameter) -> None:
 def test_the_registry_is_restored_after_a_test() -> None:
     assert "cohesion" not in TERMS
     assert "f_coh" not in default_priors()
+
+
+# ----------------------------------------------------------------------------------------
+# the command registry: a new command is one entry
+
+
+def _double_push(s):
+    """Two push-off periods back to back (a command that exists only in these tests)."""
+    from granbayes.commands import Segment
+
+    push = Segment(s.period, coef=-s.amplitude)
+    return (push, Segment(s.period, coef=-s.amplitude)), 1
+
+
+DOUBLE = granbayes.Command(
+    "double_push", "-A cos(w t) twice (for tests only)", "touching", ("delay_ms",), _double_push
+)
+
+
+@pytest.fixture
+def double_push(monkeypatch: pytest.MonkeyPatch) -> granbayes.Command:
+    """Register :data:`DOUBLE` for one test."""
+    from granbayes import commands
+
+    monkeypatch.setitem(commands.COMMANDS, DOUBLE.name, DOUBLE)
+    return DOUBLE
+
+
+def test_a_command_registered_at_run_time_is_simulated_loaded_and_described(
+    double_push: granbayes.Command, tmp_path: Path
+) -> None:
+    """One Command entry: built, simulated, accepted by the loader, named in cells.
+
+    Its own setting (``uses``) tells its cells apart and appears in their description, as
+    the delay of the delayed stutter does.
+    """
+    from granbayes import build_command, commands, load_jumps, simulate, stats
+
+    assert "double_push" in commands.command_names()
+    program = build_command("double_push")
+    assert program.t_end == pytest.approx(0.2) and program.pushoff_index == 1
+    one = simulate("single", 0.612, {"k": 3000.0}).height_mm[0]
+    two = simulate("double_push", 0.612, {"k": 3000.0}).height_mm[0]
+    assert math.isfinite(two) and two != one
+    (tmp_path / "jumps.csv").write_text(
+        "phi,command,height_mm,delay_ms\n0.612,double_push,50.0,30\n0.612,single,40.0,\n"
+    )
+    table = load_jumps(tmp_path)
+    assert list(table["command"]) == ["double_push", "single"]
+    row = {"command": "double_push", "phi": 0.612, "freq_hz": 10.0, "amplitude_mm": 20.0,
+           "delay_ms": 30.0, "mean_residual_mm": 2.0, "z": 1.0}  # fmt: skip
+    assert "(10 Hz, 20 mm, 30 ms delay)" in stats.describe_cell(row)
+    assert double_push.settings == ("freq_hz", "amplitude_mm", "delay_ms")
+    assert double_push.label == "double push"

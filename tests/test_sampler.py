@@ -308,10 +308,12 @@ def test_bad_starting_positions() -> None:
 
 
 def test_walkers_for_dimension() -> None:
-    """Walkers per ensemble: the setting, raised to an even number >= 2 x ndim."""
-    assert SamplerSettings(n_walkers=8).walkers_for(3) == 8
-    assert SamplerSettings(n_walkers=8).walkers_for(5) == 10
-    assert SamplerSettings(n_walkers=6).walkers_for(2) == 6
+    """Walkers per ensemble: the setting, raised to an even number >= 4 x ndim."""
+    assert SamplerSettings(n_walkers=8).walkers_for(2) == 8
+    assert SamplerSettings(n_walkers=8).walkers_for(3) == 12
+    assert SamplerSettings(n_walkers=8).walkers_for(5) == 20
+    assert SamplerSettings(n_walkers=10).walkers_for(2) == 10
+    assert SamplerSettings(n_walkers=7).walkers_for(1) == 8
 
 
 def test_single_blob_keeps_its_axis() -> None:

@@ -16,7 +16,8 @@ import pytest
 
 import granbayes
 import granbayes.testing
-from granbayes.experiment import COMMAND_NAMES, Experiment
+from granbayes.commands import COMMAND_NAMES
+from granbayes.experiment import Experiment
 from granbayes.forces import PARAMETER_NAMES, PARAMETERS, typical_ranges
 from granbayes.simulator import SolverSettings, Status
 from granbayes.testing import simulate_height_scipy

@@ -22,7 +22,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from numpy.typing import ArrayLike
 
-from ..experiment import COMMAND_NAMES, Experiment
+from ..commands import COMMAND_NAMES
+from ..experiment import Experiment
 
 if TYPE_CHECKING:
     from ..maps import MisfitMap

@@ -15,11 +15,15 @@ import pandas as pd
 import xarray as xr
 from scipy import stats
 
-from ..commands import COMMAND_NAMES
+from ..commands import COMMAND_NAMES, COMMANDS
 from ._intervals import CI_PROB, interval
 
 #: The settings that define one cell of repeated jumps.
 CELL_KEYS = ("command", "phi", "freq_hz", "amplitude_mm", "delay_ms", "settle_periods")
+
+
+#: How a command's own setting reads in a cell's description.
+_SETTING_TEXT = {"delay_ms": "{:g} ms delay", "settle_periods": "{:g} periods settled"}
 
 
 def cell_keys(observed: pd.DataFrame) -> list[str]:
@@ -190,10 +194,10 @@ def describe_cell(row: Mapping) -> str:
         setting.append(f"{row['freq_hz']:g} Hz")
     if row.get("amplitude_mm"):
         setting.append(f"{row['amplitude_mm']:g} mm")
-    if row.get("command") == "delayed_stutter" and "delay_ms" in row:
-        setting.append(f"{row['delay_ms']:g} ms delay")
-    if row.get("command") == "delayed_stutter_preload" and "settle_periods" in row:
-        setting.append(f"{row['settle_periods']:g} periods settled")
+    command = COMMANDS.get(str(row.get("command")))
+    for name in command.uses if command is not None else ():
+        if name in row:
+            setting.append(_SETTING_TEXT[name].format(row[name]))
     setting_text = f" ({', '.join(setting)})" if setting else ""
     return (
         f"{str(row['command']).replace('_', ' ')} at phi = {row['phi']:g}{setting_text} is "
