@@ -30,6 +30,7 @@ import importlib.metadata as _metadata
 from typing import TYPE_CHECKING
 
 from ._deprecated import warn_alias as _warn_alias
+from ._measurements import load_batch_table, load_jumps
 from .commands import (
     COMMAND_NAMES,
     COMMANDS,
@@ -40,13 +41,7 @@ from .commands import (
     build_command,
 )
 from .errors import InputError
-from .experiment import (
-    Experiment,
-    Robot,
-    load_batch_table,
-    load_experiment,
-    load_jumps,
-)
+from .experiment import Experiment, Robot, load_experiment
 from .forces import PARAMETER_NAMES, TERMS, ForceLaw
 from .simulator import (
     Heights,

@@ -396,7 +396,8 @@ def diagnose_folder(
     """
     import json
 
-    from .experiment import load_experiment, load_jumps
+    from ._measurements import load_jumps
+    from .experiment import load_experiment
 
     experiment = load_experiment(folder)
     table = load_jumps(folder, experiment)

@@ -64,6 +64,7 @@ import pandas as pd
 
 from . import __version__
 from ._files import atomic_path, staged_folder
+from ._measurements import _load_batch
 from .commands import COMMAND_NAMES
 from .demo import (
     DEMO_PARAMS,
@@ -74,7 +75,7 @@ from .demo import (
     run_demo,
 )
 from .errors import InputError
-from .experiment import Experiment, _load_batch, load_experiment
+from .experiment import Experiment, load_experiment
 from .forces import PARAMETER_NAMES, PARAMETERS, TERMS, parameter_term
 from .simulator import Status, simulate, simulate_table, simulate_trajectory
 from .synthetic import REFERENCE_DATA
@@ -655,7 +656,7 @@ def _fit_config(args: argparse.Namespace):
 
 def run_fit(args: argparse.Namespace) -> int:
     """``granbayes fit``: validate everything, sample, write the report atomically."""
-    from .experiment import load_jumps
+    from ._measurements import load_jumps
     from .fitting import compare_commands, fit
     from .priors import load_priors
     from .report import load_truth, write_fit_report
@@ -774,8 +775,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
     """``granbayes diagnose``: the model-criticism loop, written atomically to OUT."""
     import dataclasses as dc
 
+    from ._measurements import load_jumps
     from .criticism import DiagnoseSettings, diagnose
-    from .experiment import load_jumps
     from .forces import terms_of
     from .priors import load_priors
     from .report import write_diagnosis_report
@@ -879,8 +880,8 @@ def _add_sbc_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_sbc_command(args: argparse.Namespace) -> int:
     """``granbayes sbc``: simulation-based calibration of fit as a Dask campaign."""
+    from ._measurements import load_jumps
     from .campaign import CampaignError
-    from .experiment import load_jumps
     from .fitting import FitSettings
     from .priors import load_priors
     from .sampler import SamplerSettings

@@ -144,7 +144,7 @@ def _demo_hard_ground(out: Path, experiment: Experiment) -> None:
 
 def _demo_fit(out: Path, data: Path, seed: int) -> None:
     """Fit depth + drag per volume fraction to ``data`` and answer the uniqueness question."""
-    from .experiment import load_jumps
+    from ._measurements import load_jumps
     from .fitting import FitSettings, compare_commands, fit
     from .report import load_truth, write_fit_report
 

@@ -19,18 +19,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import granbayes.experiment as experiment_module
-from granbayes.errors import InputError
-from granbayes.commands import COMMAND_NAMES, CommandSettings
-from granbayes.experiment import (
+import granbayes._tables as experiment_module
+from granbayes._measurements import (
     BATCH_EXPERIMENT_COLUMNS,
     BATCH_FORCE_COLUMNS,
-    Experiment,
-    Robot,
     load_batch_table,
-    load_experiment,
     load_jumps,
 )
+from granbayes.commands import COMMAND_NAMES, CommandSettings
+from granbayes.errors import InputError
+from granbayes.experiment import Experiment, Robot, load_experiment
 
 REFERENCE_HEIGHTS = Path(__file__).resolve().parent / "data" / "reference-heights.csv"
 

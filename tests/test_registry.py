@@ -28,11 +28,10 @@ import pytest
 import xarray as xr
 
 import granbayes
-from granbayes import forces
+from granbayes import forces, load_batch_table
 from granbayes.cli import EXIT_OK, main
 from granbayes.criticism import DiagnoseSettings
 from granbayes.errors import InputError
-from granbayes.experiment import load_batch_table
 from granbayes.figures import param_label
 from granbayes.fitting import _variable_attrs
 from granbayes.forces import TERMS, DefaultPrior, ForceLaw, ForceTerm, Parameter
