@@ -23,7 +23,7 @@ Adding a term
 
 Nothing else in the package needs an edit (``tests/test_registry.py`` registers a
 throwaway term and checks that every consumer picks it up). The tests then ask for the
-term's physics once more, in the independent scipy oracle (``granbayes/testing.py``),
+term's physics once more, in the independent scipy oracle (``granbayes/testing/_oracle.py``),
 against which the kernel block is checked.
 """
 

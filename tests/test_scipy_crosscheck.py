@@ -158,7 +158,7 @@ def test_compaction_cases_cover_every_command() -> None:
 # ----------------------------------------------------------------------------------------
 # the oracle itself
 def test_oracle_docstring_examples() -> None:
-    """The examples in granbayes/testing.py run and print what they claim."""
+    """The examples in the granbayes.testing docstring run and print what they claim."""
     assert doctest.testmod(granbayes.testing).failed == 0
 
 
