@@ -174,12 +174,17 @@ class FitPart:
     @property
     def log_lik(self) -> np.ndarray:
         """Pointwise log-likelihood of the kept draws, shape (chain, draw, n_obs)."""
-        return self.run.blobs[..., : self.model.obs.n_obs]
+        return self.run.blobs[..., : self.model.n_units]
 
     @property
     def config_heights_mm(self) -> np.ndarray:
         """Simulated height of each configuration at the kept draws [mm], (chain, draw, m)."""
-        return self.run.blobs[..., self.model.obs.n_obs :]
+        start = self.model.n_units
+        for block in self.model.blocks:
+            if block is self.model.heights:
+                return self.run.blobs[..., start : start + block.n_extras()]
+            start += block.n_extras()
+        raise AttributeError("this fit has no jump heights")
 
 
 @dataclass
@@ -394,7 +399,7 @@ def _sampling_fn(models: Sequence[JumpModel]):
         order = list(xs)
         evs = evaluate_models([models[i] for i in order], [xs[i] for i in order])
         return {
-            i: (ev.log_prob, np.concatenate([ev.log_lik, ev.heights_mm], axis=1))
+            i: (ev.log_prob, np.concatenate([ev.log_lik, ev.extras], axis=1))
             for i, ev in zip(order, evs, strict=True)
         }
 
@@ -441,7 +446,7 @@ def _run_parts(
         runs.append(
             RunSpec(
                 initial.get(i, [np.zeros((n_walkers, model.ndim))] * s.n_ensembles),
-                model.obs.n_obs + len(model.obs.configs),
+                model.n_units + model.n_extras,
                 seed=seeds[i],
                 checkpoint=checkpoints[i],
                 resume=resume,

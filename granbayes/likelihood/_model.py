@@ -1,172 +1,70 @@
-"""Likelihood of measured jump heights under a force law, with its priors.
+"""The log-posterior of a force law given every kind of measurement: :class:`JumpModel`.
 
 A :class:`JumpModel` turns a matrix of walker positions (in sampling coordinates, see
-:mod:`granbayes.priors`) into log-posterior values and per-jump log-likelihoods, simulating
-every (walker, experimental configuration) pair in one batched simulator call. A failed
-simulation makes that walker's log-probability ``-inf``; nothing raises.
+:mod:`granbayes.priors`) into log-posterior values and per-unit log-likelihoods. It owns
+the force law (its coordinates and their priors); each kind of measurement is a
+:class:`~granbayes.likelihood.Block` with its own coordinates and observation model. Every
+(walker, simulated jump) pair of every block is simulated in one batched simulator call
+(:func:`evaluate_models`, which also batches several models). A failed simulation makes
+that walker's log-probability ``-inf``; nothing raises.
 
 Parametrisations of the force law across volume fractions (``phi_mode``):
 
 ``"shared"``
-    one value per parameter for all jumps in the data (used per volume fraction: one
-    force law for all five commands, the thesis's question);
+    one value per parameter for all measurements of the model (used per volume fraction:
+    one force law for all five commands, the thesis's question);
 ``"quadratic"``
     each parameter a quadratic in ``x = phi - phi_c`` in its sampling coordinate (log for
     log-scale parameters such as ``k``, square root for coefficients with a uniform prior
     from zero such as ``c_d``), fitted jointly over all volume fractions.
-
-Noise: Gaussian (default) or Student-t (``noise="student_t"``, ``nu`` degrees of freedom,
-fixed; a heavy-tailed option robust to outlying trials), with the scatter ``sigma_mm``
-fitted per volume fraction (default) or globally.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-import pandas as pd
-from scipy.special import gammaln
 
-from .commands import SETTINGS, CommandProgram, CommandSettings, build_command
-from .experiment import Experiment
-from .forces import PARAMETERS, TERMS, terms_of
-from .priors import Prior, default_priors
-from .simulator import SolverSettings, build_rows, simulate_rows
+from ..experiment import Experiment
+from ..forces import PARAMETERS, TERMS, terms_of
+from ..priors import Prior, default_priors
+from ..simulator import SolverSettings, build_rows, simulate_rows
+from ._blocks import Block, Coordinate, Simulated
+from ._heights import HeightBlock, NoiseFamily, Observations, SigmaMode
 
-__all__ = [
-    "Evaluation",
-    "JumpModel",
-    "NoiseFamily",
-    "Observations",
-    "PhiMode",
-    "SigmaMode",
-    "evaluate_models",
-]
+__all__ = ["Evaluation", "JumpModel", "PhiMode", "evaluate_models"]
 
 #: Parametrisation of a model across volume fractions (module docstring).
 PhiMode = Literal["shared", "quadratic"]
-#: Noise family of the measured heights.
-NoiseFamily = Literal["normal", "student_t"]
-#: The scatter ``sigma_mm``: one per volume fraction, or one for all.
-SigmaMode = Literal["per_phi", "global"]
-
-#: Columns that define one simulation: the volume fraction, the command and its settings.
-_CONFIG_COLUMNS = ("phi", "command", *SETTINGS)
-
-
-@dataclass(frozen=True)
-class Observations:
-    """Measured jumps grouped by simulation configuration.
-
-    Attributes
-    ----------
-    table : pandas.DataFrame
-        One row per jump (``load_jumps`` output): ``phi``, ``command``, ``height_mm`` and
-        the command settings.
-    configs : pandas.DataFrame
-        Unique ``(phi, command, settings)`` rows; one simulation each.
-    config_of_obs : ndarray of int, shape (n_obs,)
-        Row of ``configs`` for every jump.
-    programs : list of CommandProgram
-        One program per config.
-    """
-
-    table: pd.DataFrame
-    configs: pd.DataFrame
-    config_of_obs: np.ndarray
-    programs: list[CommandProgram] = field(repr=False)
-
-    @classmethod
-    def from_table(cls, table: pd.DataFrame) -> Observations:
-        """Group a validated jumps table (see :func:`granbayes.load_jumps`)."""
-        table = table.reset_index(drop=True)
-        configs = (
-            table[list(_CONFIG_COLUMNS)]
-            .drop_duplicates()
-            .sort_values(list(_CONFIG_COLUMNS))
-            .reset_index(drop=True)
-        )
-        key = pd.MultiIndex.from_frame(configs)
-        config_of_obs = key.get_indexer(pd.MultiIndex.from_frame(table[list(_CONFIG_COLUMNS)]))
-        programs = [
-            build_command(r.command, CommandSettings(**{s: getattr(r, s) for s in SETTINGS}))
-            for r in configs.itertuples()
-        ]
-        return cls(table, configs, np.asarray(config_of_obs, dtype=np.int64), programs)
-
-    def subset(self, mask: np.ndarray | pd.Series) -> Observations:
-        """Observations restricted to the jumps where ``mask`` is true.
-
-        Parameters
-        ----------
-        mask : ndarray or pandas.Series of bool
-            One entry per jump.
-
-        Returns
-        -------
-        Observations
-        """
-        return Observations.from_table(self.table[np.asarray(mask)])
-
-    @functools.cached_property
-    def config_phi(self) -> np.ndarray:
-        """Volume fraction of every config (computed once)."""
-        return self.configs["phi"].to_numpy(float)
-
-    @property
-    def n_obs(self) -> int:
-        """Number of jumps."""
-        return len(self.table)
-
-    @property
-    def phis(self) -> np.ndarray:
-        """Sorted distinct volume fractions."""
-        return np.unique(self.table["phi"].to_numpy(dtype=float))
-
-    @property
-    def height_mm(self) -> np.ndarray:
-        """Measured heights [mm]."""
-        return self.table["height_mm"].to_numpy(dtype=float)
-
-
-@dataclass(frozen=True)
-class _Coordinate:
-    """One sampled coordinate: a parameter (or polynomial coefficient) with its prior."""
-
-    name: str  # e.g. "k", "k:c1", "sigma_mm[0.592]"
-    parameter: str  # physical parameter it belongs to
-    prior: Prior
-    order: int = 0  # polynomial order in quadratic mode
-    phi: float | None = None  # for per-phi noise
 
 
 class JumpModel:
-    """Log-posterior of jump heights for a force law.
+    """Log-posterior of a force law given measurements of one or more kinds.
 
     Parameters
     ----------
-    observations : Observations
-        The data.
+    observations : Observations or sequence of Block
+        The jump heights (a :class:`HeightBlock` is made of them with ``noise``, ``nu``
+        and ``sigma_mode``), or the blocks of every kind of measurement.
     experiment : Experiment
         Robot, command defaults and ``phi_c``.
     terms : sequence of str
         Force terms to fit (``depth`` is always included); parameters of other terms take
         their ``absent`` value unless given in ``fixed``.
     priors : mapping of str to Prior, optional
-        Priors per parameter (defaults: :func:`granbayes.priors.default_priors`).
+        Priors per parameter (defaults: :func:`granbayes.priors.default_priors`; a block's
+        own parameters fall back on the block's defaults).
     phi_mode : {"shared", "quadratic"}
         Parametrisation across volume fractions (module docstring).
     noise : {"normal", "student_t"}
-        Noise family.
+        Noise family of the heights (when ``observations`` are heights).
     nu : float
         Degrees of freedom of the Student-t noise.
     sigma_mode : {"per_phi", "global"}
-        Whether the scatter is fitted per volume fraction or once.
+        Whether the heights' scatter is fitted per volume fraction or once.
     fixed : mapping of str to float, optional
         Values of parameters that are not fitted (override ``absent``).
     options : SolverSettings, optional
@@ -177,7 +75,7 @@ class JumpModel:
 
     def __init__(
         self,
-        observations: Observations,
+        observations: Observations | Sequence[Block],
         experiment: Experiment,
         terms: Sequence[str],
         *,
@@ -192,57 +90,92 @@ class JumpModel:
     ) -> None:
         if phi_mode not in ("shared", "quadratic"):
             raise ValueError(f"phi_mode must be 'shared' or 'quadratic', got {phi_mode!r}")
-        if noise not in ("normal", "student_t"):
-            raise ValueError(f"noise must be 'normal' or 'student_t', got {noise!r}")
-        if sigma_mode not in ("per_phi", "global"):
-            raise ValueError(f"sigma_mode must be 'per_phi' or 'global', got {sigma_mode!r}")
-        if not nu > 0:
-            raise ValueError("nu must be > 0")
-        self.obs = observations
+        if isinstance(observations, Observations):
+            blocks: list[Block] = [
+                HeightBlock(observations, noise=noise, nu=nu, sigma_mode=sigma_mode)
+            ]
+        else:
+            blocks = list(observations)
+        if not blocks:
+            raise ValueError("a model needs measurements: no block given")
+        kinds = [b.kind for b in blocks]
+        if len(set(kinds)) != len(kinds):
+            raise ValueError(f"one block per kind of measurement, got {kinds}")
+        self.blocks = blocks
         self.experiment = experiment
         self.terms = terms_of(terms)
         self.priors = dict(priors if priors is not None else default_priors())
         self.phi_mode = phi_mode
-        self.noise = noise
-        self.nu = float(nu)
-        self.sigma_mode = sigma_mode
         self.fixed = dict(fixed or {})
         self.options = options or SolverSettings()
         self.n_threads = n_threads
         self.parameters = tuple(p.name for t in self.terms for p in TERMS[t].parameters)
-        self._phis = observations.phis
-        self._x_config = observations.configs["phi"].to_numpy(float) - experiment.phi_c
+        self._phis = np.unique(np.concatenate([b.phis for b in blocks]))
         self._x_phis = self._phis - experiment.phi_c
-        self._coords = self._build_coordinates()
-        obs_phi = observations.table["phi"].to_numpy(float)
-        self._phi_index_of_obs = np.searchsorted(self._phis, obs_phi)
-        self._y = observations.height_mm
+        self._law = self._law_coordinates()
+        self._coords = list(self._law)
+        self._slices: list[slice] = []
+        for block in blocks:
+            own = block.coordinates(self.priors, self._phis)
+            self._slices.append(slice(len(self._coords), len(self._coords) + len(own)))
+            self._coords.extend(own)
+        self._requests = [b.jump_request() for b in blocks]
 
     # ------------------------------------------------------------------------------------
-    def _build_coordinates(self) -> list[_Coordinate]:
-        coords: list[_Coordinate] = []
+    @property
+    def heights(self) -> HeightBlock | None:
+        """The block of jump heights (``None`` if the model has none)."""
+        return next((b for b in self.blocks if isinstance(b, HeightBlock)), None)
+
+    @property
+    def obs(self) -> Observations:
+        """The jump heights the model fits."""
+        block = self.heights
+        if block is None:
+            raise AttributeError("this model fits no jump heights")
+        return block.obs
+
+    @property
+    def noise(self) -> NoiseFamily:
+        """Noise family of the heights."""
+        return self.heights.noise
+
+    @property
+    def nu(self) -> float:
+        """Student-t degrees of freedom of the heights' noise."""
+        return self.heights.nu
+
+    @property
+    def sigma_mode(self) -> SigmaMode:
+        """Whether the heights' scatter is per volume fraction or global."""
+        return self.heights.sigma_mode
+
+    @property
+    def n_units(self) -> int:
+        """Units of leave-one-out over every block, in block order."""
+        return sum(b.n_units for b in self.blocks)
+
+    @property
+    def n_extras(self) -> int:
+        """Values kept with every draw beside the log-likelihood (see :meth:`blob`)."""
+        return sum(b.n_extras() for b in self.blocks)
+
+    def _law_coordinates(self) -> list[Coordinate]:
+        coords: list[Coordinate] = []
         span = float(np.max(np.abs(self._x_phis))) if self._x_phis.size else 0.0
         for name in self.parameters:
             prior = self.priors[name]
             if self.phi_mode == "shared":
-                coords.append(_Coordinate(name, name, prior))
+                coords.append(Coordinate(name, name, prior))
                 continue
-            coords.append(_Coordinate(f"{name}:c0", name, prior, order=0))
+            coords.append(Coordinate(f"{name}:c0", name, prior, order=0))
             lo, hi = prior.bounds_u
             width = hi - lo
             scale = max(span, 0.005)
             for order in (1, 2):
                 bound = width / scale**order
                 coef_prior = Prior("uniform", -bound, bound, unit=f"{prior.unit} per phi^{order}")
-                coords.append(_Coordinate(f"{name}:c{order}", name, coef_prior, order=order))
-        sigma_prior = self.priors["sigma_mm"]
-        if self.sigma_mode == "global":
-            coords.append(_Coordinate("sigma_mm", "sigma_mm", sigma_prior))
-        else:
-            coords.extend(
-                _Coordinate(f"sigma_mm[{phi:g}]", "sigma_mm", sigma_prior, phi=float(phi))
-                for phi in self._phis
-            )
+                coords.append(Coordinate(f"{name}:c{order}", name, coef_prior, order=order))
         return coords
 
     @property
@@ -269,6 +202,22 @@ class JumpModel:
     def phis(self) -> np.ndarray:
         """Volume fractions present in the data."""
         return self._phis
+
+    def block_coordinates(self, u: np.ndarray, block: int) -> np.ndarray:
+        """The columns of ``u`` that are block ``block``'s own coordinates.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Walker positions.
+        block : int
+            Index into :attr:`blocks`.
+
+        Returns
+        -------
+        ndarray, shape (n, n_block_coordinates)
+        """
+        return np.atleast_2d(u)[:, self._slices[block]]
 
     def log_prior(self, u: np.ndarray) -> np.ndarray:
         """Log prior density of walker positions ``u`` (shape (n, ndim)) [nats].
@@ -323,15 +272,32 @@ class JumpModel:
     def _parameter_u(self, u: np.ndarray, x: np.ndarray) -> dict[str, np.ndarray]:
         """Parameters in sampling coordinates at offsets ``x = phi - phi_c``: (n, len(x))."""
         out: dict[str, np.ndarray] = {}
-        for j, c in enumerate(self._coords):
-            if c.parameter == "sigma_mm":
-                continue
+        for j, c in enumerate(self._law):
             term = u[:, j : j + 1] * (x[None, :] ** c.order)
             out[c.parameter] = out[c.parameter] + term if c.parameter in out else term
         return out
 
+    def law_values(self, u: np.ndarray, phis: np.ndarray) -> dict[str, np.ndarray]:
+        """The fitted force parameters [SI] at volume fractions ``phis``: (n, len(phis)).
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Walker positions.
+        phis : ndarray
+            Volume fractions (any, in quadratic mode; ``shared``: the law is constant).
+
+        Returns
+        -------
+        dict of str to ndarray
+        """
+        u = np.atleast_2d(u)
+        phis = np.asarray(phis, dtype=float)
+        x = phis - self.experiment.phi_c
+        return {name: self.priors[name].to_value(v) for name, v in self._parameter_u(u, x).items()}
+
     def parameter_values(self, u: np.ndarray, phis: np.ndarray | None = None) -> dict:
-        """Physical parameter values [SI] at volume fractions ``phis``.
+        """Physical parameter values at volume fractions ``phis``.
 
         Parameters
         ----------
@@ -343,50 +309,34 @@ class JumpModel:
         Returns
         -------
         dict of str to ndarray, shape (n, len(phis))
-            Force parameters and ``sigma_mm`` (sigma is NaN at phis it was not fitted for).
+            Force parameters [SI] and every block's parameters (e.g. ``sigma_mm``; NaN at
+            volume fractions they were not fitted for).
         """
         u = np.atleast_2d(u)
         phis = self._phis if phis is None else np.asarray(phis, float)
-        x = phis - self.experiment.phi_c
-        vals = {name: self.priors[name].to_value(v) for name, v in self._parameter_u(u, x).items()}
-        vals["sigma_mm"] = self._sigma_at(u, phis)
+        vals = self.law_values(u, phis)
+        for i, block in enumerate(self.blocks):
+            vals.update(block.values(self.block_coordinates(u, i), phis))
         return vals
 
-    def _sigma_at(self, u: np.ndarray, phis: np.ndarray) -> np.ndarray:
-        sig = np.full((u.shape[0], len(phis)), np.nan)
-        for j, c in enumerate(self._coords):
-            if c.parameter != "sigma_mm":
-                continue
-            value = c.prior.to_value(u[:, j])
-            for i, phi in enumerate(phis):
-                if c.phi is None or math.isclose(c.phi, phi, abs_tol=1e-12):
-                    sig[:, i] = value
-        return sig
-
     # ------------------------------------------------------------------------------------
-    def simulation_rows(
-        self, u: np.ndarray, observations: Observations | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Integrator rows of every (walker, configuration) pair, walker-major.
+    def rows_for(self, u: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """Integrator rows of every (walker, jump) pair, walker-major.
 
         Parameters
         ----------
         u : ndarray, shape (n, ndim)
             Walker positions.
-        observations : Observations, optional
-            Configurations to simulate (default: the model's data).
+        phi : ndarray, shape (m,)
+            Volume fraction of every jump.
 
         Returns
         -------
-        rows : ndarray, shape (n * n_configs, len(ROW_FIELDS))
-        program_index : ndarray of int, shape (n * n_configs,)
-            Index of each row's program in ``observations.programs``.
+        ndarray, shape (n * m, len(ROW_FIELDS))
         """
         u = np.atleast_2d(u)
-        obs = observations or self.obs
-        config_phi = obs.config_phi
-        n, m = u.shape[0], len(config_phi)
-        x_eval = np.zeros(1) if self.phi_mode == "shared" else config_phi - self.experiment.phi_c
+        n, m = u.shape[0], len(phi)
+        x_eval = np.zeros(1) if self.phi_mode == "shared" else phi - self.experiment.phi_c
         values = {
             name: self.priors[name].to_value(v) for name, v in self._parameter_u(u, x_eval).items()
         }
@@ -396,9 +346,30 @@ class JumpModel:
                 params[p.name] = np.broadcast_to(values[p.name], (n, m)).reshape(-1)
             elif p.name in self.fixed:
                 params[p.name] = np.full(n * m, float(self.fixed[p.name]))
-        phi = np.broadcast_to(config_phi, (n, m)).reshape(-1)
-        rows = build_rows(self.experiment.robot, phi, params)
-        return rows, np.tile(np.arange(m), n)
+        return build_rows(self.experiment.robot, np.broadcast_to(phi, (n, m)).reshape(-1), params)
+
+    def simulation_rows(
+        self, u: np.ndarray, observations: Observations | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Integrator rows of every (walker, height configuration) pair, walker-major.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Walker positions.
+        observations : Observations, optional
+            Configurations to simulate (default: the model's jump heights).
+
+        Returns
+        -------
+        rows : ndarray, shape (n * n_configs, len(ROW_FIELDS))
+        program_index : ndarray of int, shape (n * n_configs,)
+            Index of each row's program in ``observations.programs``.
+        """
+        u = np.atleast_2d(u)
+        obs = observations or self.obs
+        m = len(obs.config_phi)
+        return self.rows_for(u, obs.config_phi), np.tile(np.arange(m), u.shape[0])
 
     def predict(
         self,
@@ -431,7 +402,7 @@ class JumpModel:
         return heights, np.all(res.ok.reshape(heights.shape), axis=1)
 
     # ------------------------------------------------------------------------------------
-    # the observation model: the only place where the noise family is written down
+    # jump heights: the observation model is the heights block's
     def mean_and_sigma(
         self, u: np.ndarray, observations: Observations | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -459,17 +430,13 @@ class JumpModel:
 
     def _sigma_of(self, u: np.ndarray, obs: Observations) -> np.ndarray:
         """Noise scale [mm] of every jump of ``obs``: shape (n, n_obs)."""
-        if obs is self.obs:  # the likelihood's own data (every sampler call)
-            return self._sigma_at(u, self._phis)[:, self._phi_index_of_obs]
-        phis = obs.table["phi"].to_numpy(float)
-        index = np.searchsorted(self._phis, phis).clip(0, len(self._phis) - 1)
-        if not np.allclose(self._phis[index], phis, atol=1e-12):
-            missing = sorted(set(phis) - set(self._phis))
-            raise ValueError(f"no fitted scatter at phi = {missing}")
-        return self._sigma_at(u, self._phis)[:, index]
+        i = self.blocks.index(self.heights)
+        return self.heights.sigma_of(self.block_coordinates(u, i), obs)
 
     def log_density(self, y_mm: np.ndarray, mean_mm: np.ndarray, sigma_mm: np.ndarray):
-        """Log density of heights ``y_mm`` given predictive mean and scatter [mm].
+        """Log density of heights given predictive mean and scatter [mm].
+
+        The heights block's (:meth:`granbayes.likelihood.HeightBlock.log_density`).
 
         Parameters
         ----------
@@ -481,15 +448,32 @@ class JumpModel:
         ndarray
             Log density [nats, per mm].
         """
-        r = (y_mm - mean_mm) / sigma_mm
-        if self.noise == "normal":
-            return -0.5 * r * r - np.log(sigma_mm) - 0.5 * math.log(2.0 * math.pi)
-        nu = self.nu
-        const = gammaln(0.5 * (nu + 1)) - gammaln(0.5 * nu) - 0.5 * math.log(nu * math.pi)
-        return const - np.log(sigma_mm) - 0.5 * (nu + 1) * np.log1p(r * r / nu)
+        return self.heights.log_density(y_mm, mean_mm, sigma_mm)
+
+    def add_noise(
+        self, mean_mm: np.ndarray, sigma_mm: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
+        """One draw of a measured height [mm] per simulated height.
+
+        The heights block's (:meth:`granbayes.likelihood.HeightBlock.add_noise`).
+
+        Parameters
+        ----------
+        mean_mm : ndarray
+            Simulated heights.
+        sigma_mm : ndarray
+            Noise scale of every height (broadcast against ``mean_mm``).
+        rng : numpy.random.Generator
+            Source of the noise.
+
+        Returns
+        -------
+        ndarray
+        """
+        return self.heights.add_noise(mean_mm, sigma_mm, rng)
 
     def log_likelihood(self, u: np.ndarray, heights_mm: np.ndarray) -> np.ndarray:
-        """Pointwise log-likelihood of the data given simulated config heights.
+        """Pointwise log-likelihood of the jump heights given simulated config heights.
 
         Parameters
         ----------
@@ -502,29 +486,45 @@ class JumpModel:
         -------
         ndarray, shape (n, n_obs)
         """
-        mean = heights_mm[:, self.obs.config_of_obs]
-        sigma = self._sigma_of(np.atleast_2d(u), self.obs)
-        return self.log_density(self._y[None, :], mean, sigma)
+        u = np.atleast_2d(u)
+        i = self.blocks.index(self.heights)
+        sim = Simulated(heights_mm, np.ones(heights_mm.shape, dtype=bool))
+        return self.heights.log_lik(self.block_coordinates(u, i), None, sim)
 
-    def log_predictive_density(self, u: np.ndarray, observations: Observations) -> np.ndarray:
-        """Log p(y_i | draws) of (held-out) jumps, averaged over the draws ``u``.
+    def log_predictive_density(
+        self, u: np.ndarray, observations: Observations | Sequence[Block]
+    ) -> np.ndarray:
+        """Log p(y_i | draws) of (held-out) units, averaged over the draws ``u``.
 
         Parameters
         ----------
         u : ndarray, shape (n, ndim)
             Posterior draws.
-        observations : Observations
-            The jumps to score.
+        observations : Observations or sequence of Block
+            The jumps to score, or blocks of held-out units of any kind (made with each
+            kind's ``with_data`` from this model's blocks, so they read its coordinates).
 
         Returns
         -------
-        ndarray, shape (n_obs,)
-            ``log mean_s p(y_i | u_s)`` [nats]; a failed simulation counts as zero density.
+        ndarray, shape (n_units,)
+            ``log mean_s p(y_i | u_s)`` [nats], the blocks' units in order; a failed
+            simulation counts as zero density.
         """
-        mean, sigma, ok = self.mean_and_sigma(u, observations)
-        ll = self.log_density(observations.height_mm[None, :], mean, sigma)
-        ll[~ok] = -np.inf
+        u = np.atleast_2d(u)
+        if isinstance(observations, Observations):
+            observations = [self.heights.with_data(observations)]
+        ll = np.concatenate(self._block_log_lik(u, list(observations)), axis=1)
         return np.logaddexp.reduce(ll, axis=0) - math.log(len(ll))
+
+    def _block_log_lik(self, u: np.ndarray, blocks: Sequence[Block]) -> list[np.ndarray]:
+        """Pointwise log-likelihood of ``blocks`` (this model's coordinates) under ``u``."""
+        sims = _simulate([(self, u, [b.jump_request() for b in blocks])])[0]
+        law = _law_of(self, u)
+        out = []
+        for block, sim in zip(blocks, sims, strict=True):
+            i = next(j for j, b in enumerate(self.blocks) if b.kind == block.kind)
+            out.append(block.log_lik(self.block_coordinates(u, i), law, sim))
+        return out
 
     def sample_predictive(
         self, u: np.ndarray, rng: np.random.Generator, observations: Observations | None = None
@@ -549,32 +549,6 @@ class JumpModel:
         mean, sigma, _ = self.mean_and_sigma(u, observations)
         return mean, self.add_noise(mean, sigma, rng)
 
-    def add_noise(
-        self, mean_mm: np.ndarray, sigma_mm: np.ndarray, rng: np.random.Generator
-    ) -> np.ndarray:
-        """One draw of a measured height [mm] per simulated height, by the noise family.
-
-        Parameters
-        ----------
-        mean_mm : ndarray
-            Simulated heights.
-        sigma_mm : ndarray
-            Noise scale of every height (broadcast against ``mean_mm``).
-        rng : numpy.random.Generator
-            Source of the noise.
-
-        Returns
-        -------
-        ndarray
-            ``mean_mm + sigma_mm * eps`` with ``eps`` standard normal or Student-t(``nu``).
-        """
-        mean_mm = np.asarray(mean_mm, dtype=float)
-        if self.noise == "normal":
-            eps = rng.standard_normal(mean_mm.shape)
-        else:
-            eps = rng.standard_t(self.nu, mean_mm.shape)
-        return mean_mm + sigma_mm * eps
-
     def __call__(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Log-posterior and pointwise log-likelihood of walker positions.
 
@@ -588,7 +562,7 @@ class JumpModel:
         log_prob : ndarray, shape (n,)
             Log prior + log likelihood; ``-inf`` outside the prior or if a simulation
             failed.
-        log_lik : ndarray, shape (n, n_obs)
+        log_lik : ndarray, shape (n, n_units)
             Pointwise log-likelihood (``-inf`` rows where ``log_prob`` is ``-inf``).
         """
         ev = evaluate_models([self], [u])[0]
@@ -631,16 +605,69 @@ class Evaluation:
     log_prob : ndarray, shape (n,)
         Log prior + log likelihood [nats]; ``-inf`` outside the prior or where a
         simulation failed.
-    log_lik : ndarray, shape (n, n_obs)
-        Pointwise log-likelihood of the model's jumps (``-inf`` rows where ``log_prob`` is
-        ``-inf``).
-    heights_mm : ndarray, shape (n, n_configs)
-        Simulated height of every configuration [mm] (NaN outside the prior).
+    log_lik : ndarray, shape (n, n_units)
+        Pointwise log-likelihood of the model's units, block by block (``-inf`` rows where
+        ``log_prob`` is ``-inf``).
+    extras : ndarray, shape (n, n_extras)
+        What the blocks keep with every draw (the heights block: the simulated height of
+        every configuration [mm]); NaN outside the prior.
     """
 
     log_prob: np.ndarray
     log_lik: np.ndarray
-    heights_mm: np.ndarray
+    extras: np.ndarray
+
+
+def _law_of(model: JumpModel, u: np.ndarray):
+    """The force law of walkers ``u`` as a function of the volume fraction."""
+    return lambda phis: model.law_values(u, phis)
+
+
+def _simulate(jobs: Sequence[tuple[JumpModel, np.ndarray, Sequence]]) -> list[list]:
+    """Every jump request of every job in one simulator call.
+
+    A job is ``(model, u, requests)``: walkers ``u`` (n, ndim) of ``model`` and one
+    :class:`JumpRequest` (or ``None``) per block. Returns, per job, one :class:`Simulated`
+    (or ``None``) per request.
+    """
+    rows, index, programs, frames, where = [], [], [], [], []
+    options = n_threads = None
+    for model, u, requests in jobs:
+        options, n_threads = model.options, model.n_threads
+        for req in requests:
+            if req is None or len(u) == 0:
+                continue
+            m = req.n_jumps
+            rows.append(model.rows_for(u, req.phi))
+            index.append(np.tile(np.arange(m), len(u)) + len(programs))
+            programs.extend(req.programs)
+            if req.frame_times_s is not None:
+                frames.append((len(where), req))
+            where.append((len(u), m))
+    out: list[list] = [[None] * len(r) for _, _, r in jobs]
+    if not rows:
+        return out
+    if frames:
+        raise NotImplementedError("trajectories need the frame simulator")
+    res = simulate_rows(
+        np.concatenate(rows),
+        programs,
+        np.concatenate(index),
+        options=options,
+        n_threads=n_threads,
+    )
+    start, k = 0, 0
+    for j, (_, u, requests) in enumerate(jobs):
+        for i, req in enumerate(requests):
+            if req is None or len(u) == 0:
+                continue
+            n, m = where[k]
+            stop = start + n * m
+            out[j][i] = Simulated(
+                res.height_mm[start:stop].reshape(n, m), res.ok[start:stop].reshape(n, m)
+            )
+            start, k = stop, k + 1
+    return out
 
 
 def evaluate_models(
@@ -650,9 +677,9 @@ def evaluate_models(
 
     The volume fractions of a fit, the candidate laws of a screening or the refits of a
     cross-validation are independent models; their simulations (every walker inside its
-    model's prior, every configuration) are concatenated into one batch for the compiled
-    simulator, which then runs in parallel over all of them. The simulator works jump by
-    jump, so each model's values are those of evaluating it alone.
+    model's prior, every jump of every block) are concatenated into one batch for the
+    compiled simulator, which then runs in parallel over all of them. The simulator works
+    jump by jump, so each model's values are those of evaluating it alone.
 
     Parameters
     ----------
@@ -672,46 +699,31 @@ def evaluate_models(
     if any(m.options != options or m.n_threads != n_threads for m in models):
         raise ValueError("models evaluated together must share solver settings and threads")
     prepared = []
-    rows, index, programs = [], [], []
     for model, u in zip(models, positions, strict=True):
         u = np.atleast_2d(np.asarray(u, dtype=float)).reshape(-1, model.ndim)
         lp = model.log_prior(u) if len(u) else np.empty(0)
         good = np.isfinite(lp)
-        if np.any(good):
-            r, i = model.simulation_rows(u[good])
-            rows.append(r)
-            index.append(i + len(programs))
-            programs.extend(model.obs.programs)
         prepared.append((model, u, lp, good))
-    heights = ok = None
-    if rows:
-        res = simulate_rows(
-            np.concatenate(rows),
-            programs,
-            np.concatenate(index),
-            options=options,
-            n_threads=n_threads,
-        )
-        heights, ok = res.height_mm, res.ok
+    sims = _simulate([(m, u[good], m._requests) for m, u, _, good in prepared])
     out = []
-    start = 0
-    for model, u, lp, good in prepared:
-        n, m = len(u), len(model.obs.configs)
-        sim = np.full((n, m), np.nan)
-        loglik = np.full((n, model.obs.n_obs), -np.inf)
-        n_good = int(np.sum(good))
-        if n_good:
-            stop = start + n_good * m
-            h = heights[start:stop].reshape(n_good, m)
-            fine = np.all(ok[start:stop].reshape(n_good, m), axis=1)
-            start = stop
-            ll = model.log_likelihood(u[good], h)
-            ll[~fine] = -np.inf
+    for (model, u, lp, good), sim in zip(prepared, sims, strict=True):
+        n = len(u)
+        extras = np.full((n, model.n_extras), np.nan)
+        loglik = np.full((n, model.n_units), -np.inf)
+        if np.any(good):
+            ug = u[good]
+            law = _law_of(model, ug)
+            lls, kept = [], []
+            for i, block in enumerate(model.blocks):
+                ll = block.log_lik(model.block_coordinates(ug, i), law, sim[i])
+                lls.append(ll)
+                kept.append(block.extras(sim[i]))
+            ll = np.concatenate(lls, axis=1)
             loglik[good] = ll
-            sim[good] = h
+            extras[good] = np.concatenate(kept, axis=1)
             total = ll.sum(axis=1)
             total[~np.isfinite(total)] = -np.inf
             lp = lp.copy()
             lp[good] = lp[good] + total
-        out.append(Evaluation(lp, loglik, sim))
+        out.append(Evaluation(lp, loglik, extras))
     return out

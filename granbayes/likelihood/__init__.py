@@ -1,0 +1,29 @@
+"""Likelihood of measurements under a force law, with its priors.
+
+The public surface: :class:`JumpModel` (the force law and the blocks of every kind of
+measurement), :func:`evaluate_models` (many models, one simulator call), the block
+interface (:class:`Block`, :class:`Coordinate`, :class:`JumpRequest`, :class:`Simulated`)
+and the blocks of the library's kinds (:class:`HeightBlock` with its grouped
+:class:`Observations`). Implementation modules: ``_model`` (the law and evaluation),
+``_blocks`` (the interface), ``_heights`` (jump heights).
+"""
+
+from ._blocks import Block, Coordinate, JumpRequest, LawValues, Simulated
+from ._heights import HeightBlock, NoiseFamily, Observations, SigmaMode
+from ._model import Evaluation, JumpModel, PhiMode, evaluate_models
+
+__all__ = [
+    "Block",
+    "Coordinate",
+    "Evaluation",
+    "HeightBlock",
+    "JumpModel",
+    "JumpRequest",
+    "LawValues",
+    "NoiseFamily",
+    "Observations",
+    "PhiMode",
+    "SigmaMode",
+    "Simulated",
+    "evaluate_models",
+]

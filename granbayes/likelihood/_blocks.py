@@ -1,0 +1,204 @@
+"""What a kind of measurement contributes to a model: its block of the likelihood.
+
+A :class:`Block` holds the measurements of one kind that one model fits (jump heights,
+tracked trajectories, intrusion curves, ...), its own sampled coordinates (noise scales,
+correlation times: never force parameters, which belong to the law), what it asks the
+compiled simulator for (:class:`JumpRequest`), and its observation model: the pointwise
+log-likelihood of its units (the unit of leave-one-out: a jump, a tracked jump, an
+intrusion test), posterior-predictive replicates, and the values of its coordinates per
+volume fraction for the posterior. The model (:class:`granbayes.likelihood.JumpModel`)
+owns the force law and knows blocks only through this interface; the registry of kinds
+(:mod:`granbayes.kinds`) says which block reads which file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..commands import CommandProgram
+from ..priors import Prior
+
+__all__ = ["Block", "Coordinate", "JumpRequest", "LawValues", "Simulated"]
+
+#: The force law's physical parameter values at given volume fractions:
+#: ``law(phis)[name]`` has shape ``(n_walkers, len(phis))`` [SI].
+LawValues = Callable[[np.ndarray], Mapping[str, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class Coordinate:
+    """One sampled coordinate: a parameter (or polynomial coefficient) with its prior.
+
+    Attributes
+    ----------
+    name : str
+        Column name, e.g. ``"k"``, ``"k:c1"``, ``"sigma_mm[0.592]"``.
+    parameter : str
+        The physical parameter it belongs to.
+    prior : Prior
+        Its prior (in the parameter's unit; sampled in its sampling coordinate).
+    order : int
+        Polynomial order in ``phi - phi_c`` (quadratic laws); 0 otherwise.
+    phi : float, optional
+        The volume fraction a per-phi coordinate belongs to (``None``: all).
+    """
+
+    name: str
+    parameter: str
+    prior: Prior
+    order: int = 0
+    phi: float | None = None
+
+
+@dataclass(frozen=True)
+class JumpRequest:
+    """Jumps a block asks the compiled simulator for: one per configuration.
+
+    Attributes
+    ----------
+    phi : ndarray, shape (m,)
+        Volume fraction of each simulated jump [-].
+    programs : list of CommandProgram
+        Its command program.
+    frame_times_s : list of ndarray, optional
+        Times [s] on the command's clock at which the foot and rod positions are wanted,
+        one array per jump (``None``: heights only).
+    """
+
+    phi: np.ndarray
+    programs: list[CommandProgram] = field(repr=False)
+    frame_times_s: list[np.ndarray] | None = field(default=None, repr=False)
+
+    @property
+    def n_jumps(self) -> int:
+        """Number of simulated jumps."""
+        return len(self.programs)
+
+
+@dataclass(frozen=True)
+class Simulated:
+    """What the simulator returned for a block's :class:`JumpRequest`, for n walkers.
+
+    Attributes
+    ----------
+    heights_mm : ndarray, shape (n, m)
+        Jump heights [mm] (NaN where the simulation failed).
+    ok : ndarray of bool, shape (n, m)
+        Whether each simulation succeeded.
+    frames : ndarray, shape (n, n_frames, 4), optional
+        Foot height, rod displacement [mm] and foot, rod velocity [mm/s] at every requested
+        frame time, the jumps' frames concatenated in request order.
+    """
+
+    heights_mm: np.ndarray
+    ok: np.ndarray
+    frames: np.ndarray | None = None
+
+
+class Block:
+    """The likelihood block of one kind of measurement (see the module docstring).
+
+    Subclasses set the class attributes and implement the methods; the defaults describe
+    a block that needs no simulation and has no coordinates.
+
+    Attributes
+    ----------
+    kind : str
+        The registry name of its kind (:data:`granbayes.kinds.KINDS`).
+    unit_dim : str
+        Dimension of its units of leave-one-out in a fit's DataTree.
+    variable : str
+        Name of its pointwise log-likelihood in the DataTree's ``log_likelihood`` group.
+    """
+
+    kind: str = ""
+    unit_dim: str = ""
+    variable: str = ""
+
+    @property
+    def n_units(self) -> int:
+        """Number of units (leave-one-out is over units)."""
+        raise NotImplementedError
+
+    @property
+    def phis(self) -> np.ndarray:
+        """Sorted distinct volume fractions of its measurements."""
+        raise NotImplementedError
+
+    def coordinates(self, priors: Mapping[str, Prior], phis: np.ndarray) -> list[Coordinate]:
+        """The block's sampled coordinates.
+
+        Parameters
+        ----------
+        priors : mapping of str to Prior
+            Priors by parameter name (a block falls back on its own defaults).
+        phis : ndarray
+            Volume fractions of the whole model.
+
+        Returns
+        -------
+        list of Coordinate
+        """
+        return []
+
+    def jump_request(self) -> JumpRequest | None:
+        """The jumps to simulate (``None``: the block needs no compiled simulation)."""
+        return None
+
+    def log_lik(self, u: np.ndarray, law: LawValues, sim: Simulated | None) -> np.ndarray:
+        """Pointwise log-likelihood of the block's units.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, n_coordinates)
+            The block's own coordinates (sampling coordinates) of n walkers.
+        law : callable
+            The force law's values at given volume fractions (:data:`LawValues`).
+        sim : Simulated or None
+            The simulator's answer to :meth:`jump_request`.
+
+        Returns
+        -------
+        ndarray, shape (n, n_units)
+            ``-inf`` where a simulation failed.
+        """
+        raise NotImplementedError
+
+    def n_extras(self) -> int:
+        """Values per walker the sampler keeps beside the log-likelihood (its blob)."""
+        return 0
+
+    def extras(self, sim: Simulated | None) -> np.ndarray:
+        """The kept values (see :meth:`n_extras`).
+
+        Parameters
+        ----------
+        sim : Simulated or None
+            The simulator's answer to :meth:`jump_request`.
+
+        Returns
+        -------
+        ndarray, shape (n, n_extras)
+        """
+        n = 0 if sim is None else sim.heights_mm.shape[0]
+        return np.empty((n, 0))
+
+    def values(self, u: np.ndarray, phis: np.ndarray) -> dict[str, np.ndarray]:
+        """The block's parameters [their units] at volume fractions ``phis``.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, n_coordinates)
+            The block's coordinates.
+        phis : ndarray
+            Volume fractions.
+
+        Returns
+        -------
+        dict of str to ndarray, shape (n, len(phis))
+            NaN at volume fractions the block has no value for.
+        """
+        return {}
