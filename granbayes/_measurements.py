@@ -413,6 +413,9 @@ class Measurements:
         dropped.
     unit_columns : mapping of str to str or None
         Kind name to the column naming its units (``None``: every row is a unit).
+    origin : mapping of str to ndarray, optional
+        For measurements selected from others (:meth:`select`): the row each row was in
+        the original tables (default: the rows themselves).
 
     Examples
     --------
@@ -423,10 +426,19 @@ class Measurements:
     """
 
     def __init__(
-        self, tables: Mapping[str, pd.DataFrame], unit_columns: Mapping[str, str | None]
+        self,
+        tables: Mapping[str, pd.DataFrame],
+        unit_columns: Mapping[str, str | None],
+        origin: Mapping[str, np.ndarray] | None = None,
     ) -> None:
-        self.tables = {k: t.reset_index(drop=True) for k, t in tables.items() if len(t)}
+        kept = {k: t for k, t in tables.items() if len(t)}
+        self.tables = {k: t.reset_index(drop=True) for k, t in kept.items()}
         self.unit_columns = {k: unit_columns.get(k) for k in self.tables}
+        #: Row of every row in the tables these were selected from (itself: 0, 1, ...).
+        self.origin = {
+            k: np.arange(len(t)) if origin is None else np.asarray(origin[k])
+            for k, t in self.tables.items()
+        }
         self._unit_of_row: dict[str, np.ndarray] = {}
         self._n: dict[str, int] = {}
         for kind, table in self.tables.items():
@@ -518,12 +530,13 @@ class Measurements:
         """
         units = np.asarray(units)
         keep = units if units.dtype == bool else np.isin(np.arange(self.n_units), units)
-        tables = {}
+        tables, origin = {}, {}
         for kind, table in self.tables.items():
             start = self.offset(kind)
-            mine = keep[start : start + self._n[kind]]
-            tables[kind] = table[mine[self._unit_of_row[kind]]]
-        return Measurements(tables, self.unit_columns)
+            rows = keep[start : start + self._n[kind]][self._unit_of_row[kind]]
+            tables[kind] = table[rows]
+            origin[kind] = self.origin[kind][rows]
+        return Measurements(tables, self.unit_columns, origin)
 
     def at_phi(self, phi: float) -> Measurements:
         """The measurements at one volume fraction."""

@@ -28,19 +28,44 @@ __all__ = [
 ]
 
 
+def _heights_observed(observed: pd.DataFrame) -> xr.Dataset:
+    """A jumps table as observed data: ``height_mm`` over ``jump``, columns as coordinates."""
+    coords: dict[str, object] = {"jump": np.arange(len(observed))}
+    coords |= {
+        c: ("jump", observed[c].to_numpy())
+        for c in observed.columns
+        if c != "height_mm" and observed[c].notna().all()
+    }
+    values = observed["height_mm"].to_numpy(float)
+    return xr.Dataset({"height_mm": ("jump", values)}, coords=coords)
+
+
+def _with_dims(
+    variables: Mapping[str, object], default: Sequence[str]
+) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
+    """Arrays and their dimensions from ``name -> array`` or ``name -> (dims, array)``."""
+    arrays, dims = {}, {}
+    for name, value in variables.items():
+        if isinstance(value, tuple):
+            dims[name], arrays[name] = list(value[0]), np.asarray(value[1])
+        else:
+            dims[name], arrays[name] = list(default), np.asarray(value)
+    return arrays, dims
+
+
 def build_datatree(
     posterior: Mapping[str, np.ndarray],
     *,
     dims: Mapping[str, Sequence[str]],
     coords: Mapping[str, object],
-    log_likelihood: np.ndarray,
-    posterior_predictive: Mapping[str, np.ndarray],
-    observed: pd.DataFrame,
+    log_likelihood: np.ndarray | Mapping[str, tuple[Sequence[str], np.ndarray]],
+    posterior_predictive: Mapping[str, object],
+    observed: pd.DataFrame | xr.Dataset,
     sample_stats: Mapping[str, np.ndarray],
     attrs: Mapping[str, object],
     stats_dims: Mapping[str, Sequence[str]] | None = None,
     prior: Mapping[str, np.ndarray] | None = None,
-    prior_predictive: Mapping[str, np.ndarray] | None = None,
+    prior_predictive: Mapping[str, object] | None = None,
     log_prior: Mapping[str, np.ndarray] | None = None,
     var_attrs: Mapping[str, Mapping[str, str]] | None = None,
 ) -> xr.DataTree:
@@ -54,13 +79,17 @@ def build_datatree(
         Extra dimensions per posterior variable.
     coords : mapping of str to array_like
         Coordinate values per dimension.
-    log_likelihood : ndarray, shape (chain, draw, jump)
-        Pointwise log-likelihood of every measured jump (variable ``height_mm``).
-    posterior_predictive : mapping of str to ndarray
-        Variables of shape ``(chain, draw, jump)``, e.g. replicated heights [mm].
-    observed : pandas.DataFrame
+    log_likelihood : ndarray or mapping
+        Pointwise log-likelihood of every unit of leave-one-out: an array of shape
+        ``(chain, draw, jump)`` (variable ``height_mm``), or, per kind of measurement,
+        variable name to ``(dims, array)`` over its unit dimension.
+    posterior_predictive : mapping of str to ndarray or (dims, ndarray)
+        Variables of shape ``(chain, draw, jump)`` (e.g. replicated heights [mm]), or with
+        their own dimensions.
+    observed : pandas.DataFrame or xarray.Dataset
         One row per jump with ``height_mm`` and descriptive columns (``phi``,
-        ``command``, ``freq_hz``, ...), stored as coordinates of ``jump``.
+        ``command``, ``freq_hz``, ...), stored as coordinates of ``jump``; or the observed
+        data of every kind, each on its own dimensions with its coordinates.
     sample_stats : mapping of str to ndarray
         Per-draw sampler statistics, shape ``(chain, draw, ...)``.
     attrs : mapping
@@ -70,8 +99,9 @@ def build_datatree(
         Extra dimensions of the ``sample_stats`` variables.
     prior : mapping of str to ndarray, optional
         Prior draws of the posterior's variables, shape ``(chain, draw, *dims[name])``.
-    prior_predictive : mapping of str to ndarray, optional
-        Heights simulated from the prior draws, shape ``(chain, draw, jump)``.
+    prior_predictive : mapping of str to ndarray or (dims, ndarray), optional
+        Measurements simulated from the prior draws (``(chain, draw, jump)`` arrays, or
+        with their own dimensions).
     log_prior : mapping of str to ndarray, optional
         Log prior density of every posterior draw, shape ``(chain, draw)``.
     var_attrs : mapping of str to mapping, optional
@@ -81,29 +111,32 @@ def build_datatree(
     -------
     xarray.DataTree
     """
-    n_jump = len(observed)
-    groups: dict[str, dict] = {
-        "posterior": dict(posterior),
-        "log_likelihood": {"height_mm": log_likelihood},
-        "observed_data": {"height_mm": observed["height_mm"].to_numpy(float)},
-    }
+    if isinstance(observed, pd.DataFrame):
+        observed = _heights_observed(observed)
+    if not isinstance(log_likelihood, Mapping):
+        log_likelihood = {"height_mm": (["jump"], log_likelihood)}
+    ll, ll_dims = _with_dims(log_likelihood, ["jump"])
+    pp, pp_dims = _with_dims(posterior_predictive or {}, ["jump"])
+    prior_pp, prior_pp_dims = _with_dims(prior_predictive or {}, ["jump"])
+    groups: dict[str, dict] = {"posterior": dict(posterior), "log_likelihood": ll}
     all_dims: dict[str, list[str]] = {k: list(v) for k, v in dims.items()}
-    all_dims["height_mm"] = ["jump"]
-    if posterior_predictive:
-        groups["posterior_predictive"] = dict(posterior_predictive)
-        all_dims.update({k: ["jump"] for k in posterior_predictive})
+    all_dims.update(ll_dims)
+    if pp:
+        groups["posterior_predictive"] = pp
+        all_dims.update(pp_dims)
     if sample_stats:
         groups["sample_stats"] = dict(sample_stats)
         all_dims.update({k: list(v) for k, v in (stats_dims or {}).items()})
     if prior:
         groups["prior"] = dict(prior)
-    if prior_predictive:
-        groups["prior_predictive"] = dict(prior_predictive)
+    if prior_pp:
+        groups["prior_predictive"] = prior_pp
+        all_dims.update(prior_pp_dims)
     if log_prior:
         groups["log_prior"] = dict(log_prior)
     used = {d for v in all_dims.values() for d in v}
     all_coords = {k: np.asarray(v) for k, v in coords.items() if k in used}
-    all_coords["jump"] = np.arange(n_jump)
+    all_coords |= {d: observed[d].values for d in observed.dims if d in used}
     with warnings.catch_warnings():
         # every walker of the ensembles is a chain, so a run keeps more chains than draws
         # by design; ArviZ's check of the dimension names would flag it as a naming error
@@ -113,14 +146,15 @@ def build_datatree(
             category=UserWarning,
         )
         dt = az.from_dict(groups, coords=all_coords, dims=all_dims)
-    extra = {
-        c: ("jump", observed[c].to_numpy())
-        for c in observed.columns
-        if c != "height_mm" and observed[c].notna().all()
-    }
-    for group in ("log_likelihood", "posterior_predictive", "prior_predictive", "observed_data"):
+    dt["observed_data"] = observed
+    # the coordinates of the observations (volume fraction, command, settings, ...) go
+    # with every group over the same dimensions
+    extra = {c: observed[c] for c in observed.coords if c not in observed.dims}
+    for group in ("log_likelihood", "posterior_predictive", "prior_predictive"):
         if group in dt.children:
-            dt[group] = dt[group].to_dataset().assign_coords(extra)
+            ds = dt[group].to_dataset()
+            mine = {c: v for c, v in extra.items() if set(v.dims) <= set(ds.dims)}
+            dt[group] = ds.assign_coords(mine)
     for group in dt.children:
         ds = dt[group].to_dataset()
         for name, var_attr in (var_attrs or {}).items():

@@ -32,15 +32,19 @@ import xarray as xr
 from . import datatree as gdt
 from . import stats
 from ._deprecated import alias_getattr
+from ._measurements import Measurements
 from ._provenance import environment
 from ._search import drive, nelder_mead
 from .commands import COMMAND_NAMES
 from .experiment import Experiment
 from .forces import PARAMETERS, terms_of
+from .kinds import KINDS, blocks_for
 from .likelihood import (
+    HeightBlock,
     JumpModel,
     NoiseFamily,
     Observations,
+    ObservationSettings,
     PhiMode,
     SigmaMode,
     evaluate_models,
@@ -162,18 +166,28 @@ class FitPart:
         Its log-posterior.
     run : SamplerRun
         The pooled ensembles.
-    jumps : ndarray of int
-        Rows of the jumps table the run fits.
+    units : ndarray of int
+        The units of leave-one-out the run fits, numbered over the fit's measurements
+        (:class:`~granbayes.Measurements`; for jump heights alone, rows of the jumps
+        table), in the order of the model's blocks.
+    data : Measurements, optional
+        The measurements the run fits.
     """
 
     label: str
     model: JumpModel
     run: SamplerRun
-    jumps: np.ndarray  # rows of the full table this part fitted
+    units: np.ndarray
+    data: Measurements | None = None
+
+    @property
+    def jumps(self) -> np.ndarray:
+        """The run's units (former name, from when every unit was a jump)."""
+        return self.units
 
     @property
     def log_lik(self) -> np.ndarray:
-        """Pointwise log-likelihood of the kept draws, shape (chain, draw, n_obs)."""
+        """Pointwise log-likelihood of the kept draws, shape (chain, draw, n_units)."""
         return self.run.blobs[..., : self.model.n_units]
 
     @property
@@ -219,32 +233,34 @@ class FitResult:
         """Per run: autocorrelation times, R-hat, ESS, chain length, convergence."""
         return stats.run_diagnostics(self.datatree)
 
-    def log_predictive_density(self, table: pd.DataFrame) -> np.ndarray:
-        """Log predictive density of jumps the fit has not seen [nats], one per row.
+    def log_predictive_density(self, data: pd.DataFrame | Measurements) -> np.ndarray:
+        """Log predictive density of units the fit has not seen [nats], one per unit.
 
         ``log mean_s p(y_i | theta_s)`` over every posterior draw of the run that fitted
-        the row's volume fraction (the observation model of
-        :meth:`granbayes.likelihood.JumpModel.log_predictive_density`): held-out jumps of
+        the unit's volume fraction (the observation model of
+        :meth:`granbayes.likelihood.JumpModel.log_predictive_density`): held-out units of
         a cross-validation, or a new experiment at the fitted volume fractions.
 
         Parameters
         ----------
-        table : pandas.DataFrame
-            Jumps (``load_jumps`` columns).
+        data : pandas.DataFrame or Measurements
+            Jumps (``load_jumps`` columns; one unit per row), or measurements of the kinds
+            the fit has.
 
         Returns
         -------
-        ndarray, shape (len(table),)
-            NaN for a row at a volume fraction no run of the fit covers.
+        ndarray, shape (n_units,)
+            NaN for a unit at a volume fraction no run of the fit covers.
         """
-        out = np.full(len(table), np.nan)
-        phi = table["phi"].to_numpy(dtype=float)
+        data = _as_measurements(data)
+        out = np.full(data.n_units, np.nan)
+        phi = data.units["phi"].to_numpy(dtype=float)
         for part in self.parts:
-            rows = np.isin(phi, np.asarray(part.model.phis, dtype=float))
-            if np.any(rows):
+            units = np.flatnonzero(np.isin(phi, np.asarray(part.model.phis, dtype=float)))
+            if len(units):
                 flat = part.run.samples.reshape(-1, part.run.samples.shape[-1])
-                obs = Observations.from_table(table[rows])
-                out[rows] = part.model.log_predictive_density(flat, obs)
+                held_out = _held_out(part.model, data.select(units))
+                out[units] = part.model.log_predictive_density(flat, held_out)
         return out
 
     def save(self, path: str | Path) -> Path:
@@ -468,31 +484,61 @@ def _labelled(progress: Callable[[str, ProgressInfo], None], label: str):
 def _fingerprint(model: JumpModel, config: FitSettings, seed: int) -> str:
     """What a checkpoint must match to be resumed: data, priors, model and settings."""
     h = hashlib.sha256()
-    h.update(data_hash(model.experiment, model.obs.table).encode())
+    for block in model.blocks:
+        h.update(f"[{block.kind}]".encode())
+        h.update(data_hash(model.experiment, block.table).encode())
     h.update(repr(sorted((k, dataclasses.astuple(v)) for k, v in model.priors.items())).encode())
     h.update(repr((model.coordinate_names, config.to_dict(), seed)).encode())
-    h.update(b"blobs: log-likelihood per jump, then simulated height per configuration")
+    h.update(b"blobs: log-likelihood per unit, then each block's kept values")
     return h.hexdigest()
 
 
-def _prepare(table: pd.DataFrame) -> pd.DataFrame:
-    table = table.reset_index(drop=True).copy()
-    table["jump"] = np.arange(len(table))
-    return table
+def _as_measurements(data: pd.DataFrame | Measurements) -> Measurements:
+    """Measurements as they are; a jumps table as jump heights (one unit per row)."""
+    if isinstance(data, Measurements):
+        return data
+    return Measurements.from_jumps(data.reset_index(drop=True))
+
+
+def _held_out(model: JumpModel, data: Measurements) -> list:
+    """Blocks of ``data`` under ``model``'s coordinates, one per kind (unit order)."""
+    out = []
+    for kind in data.kinds:
+        own = next((b for b in model.blocks if b.kind == kind), None)
+        if own is None:
+            raise ValueError(f"the fit has no {kind!r} measurements to score these with")
+        out.append(own.with_data(data.tables[kind]))
+    return out
+
+
+def _observation_settings(config: FitSettings, phi_mode: PhiMode) -> ObservationSettings:
+    return ObservationSettings(
+        noise=config.noise,
+        nu=config.nu,
+        sigma_mode=config.sigma_mode if phi_mode == "quadratic" else "per_phi",
+    )
 
 
 def _make_model(
-    obs: Observations, experiment: Experiment, config: FitSettings, priors, phi_mode: PhiMode
+    data: Measurements | Observations,
+    experiment: Experiment,
+    config: FitSettings,
+    priors,
+    phi_mode: PhiMode,
 ) -> JumpModel:
+    settings = _observation_settings(config, phi_mode)
+    if isinstance(data, Observations):
+        blocks = [
+            HeightBlock(data, noise=settings.noise, nu=settings.nu, sigma_mode=settings.sigma_mode)
+        ]
+    else:
+        blocks = blocks_for(data, settings)
     return JumpModel(
-        obs,
+        blocks,
         experiment,
         config.terms,
         priors=priors,
         phi_mode=phi_mode,
-        noise=config.noise,
-        nu=config.nu,
-        sigma_mode=config.sigma_mode if phi_mode == "quadratic" else "per_phi",
         fixed=config.fixed,
         options=config.options,
         n_threads=config.n_threads,
@@ -501,47 +547,48 @@ def _make_model(
 
 def part_models(
     experiment: Experiment,
-    table: pd.DataFrame,
+    data: pd.DataFrame | Measurements,
     config: FitSettings,
     priors: Mapping[str, Prior],
 ) -> list[tuple[str, JumpModel, np.ndarray]]:
-    """The sampler runs a fit consists of: label, log-posterior and the jumps of each.
+    """The sampler runs a fit consists of: label, log-posterior and the units of each.
 
     ``per_phi``: one run per volume fraction (label ``"phi=<phi>"``, one parameter set
-    shared by every command); ``quadratic``: one run of all jumps (label ``"all"``). The
-    fit and a saved fit read back (:func:`granbayes.load_fit`) build their models here.
+    shared by every command and every kind of measurement); ``quadratic``: one run of all
+    measurements (label ``"all"``). The fit and a saved fit read back
+    (:func:`granbayes.load_fit`) build their models here.
 
     Parameters
     ----------
     experiment : Experiment
-    table : pandas.DataFrame
-        Validated jumps; row ``i`` is jump ``i``.
+    data : pandas.DataFrame or Measurements
+        Validated jumps (row ``i`` is jump ``i``), or measurements of several kinds.
     config : FitSettings
     priors : mapping of str to Prior
 
     Returns
     -------
     list of (str, JumpModel, ndarray of int)
-        Label, model and the rows of ``table`` each run fits, in run order.
+        Label, model and the units (:class:`~granbayes.Measurements` numbering; rows of a
+        jumps table) each run fits, in run order.
     """
-    table = table.reset_index(drop=True)
-    jumps = np.arange(len(table))
+    data = _as_measurements(data)
     if config.phi_mode == "quadratic":
-        obs = Observations.from_table(table)
-        return [("all", _make_model(obs, experiment, config, priors, "quadratic"), jumps)]
-    out = []
-    for phi in np.unique(table["phi"].to_numpy(float)):
-        mask = (table["phi"] == phi).to_numpy()
-        obs = Observations.from_table(table[mask])
-        out.append(
-            (f"phi={phi:g}", _make_model(obs, experiment, config, priors, "shared"), jumps[mask])
+        model = _make_model(data, experiment, config, priors, "quadratic")
+        return [("all", model, np.arange(data.n_units))]
+    return [
+        (
+            f"phi={phi:g}",
+            _make_model(data.at_phi(phi), experiment, config, priors, "shared"),
+            data.units_at_phi(phi),
         )
-    return out
+        for phi in data.phis
+    ]
 
 
 def fit(
     experiment: Experiment,
-    table: pd.DataFrame,
+    table: pd.DataFrame | Measurements,
     config: FitSettings | None = None,
     *,
     seed: int = 0,
@@ -552,14 +599,15 @@ def fit(
     warm_start: xr.DataTree | None = None,
     progress: Callable[[str, ProgressInfo], None] | None = None,
 ) -> FitResult:
-    """Fit a force law to measured jump heights.
+    """Fit a force law to measured jump heights and every other kind of measurement.
 
     Parameters
     ----------
     experiment : Experiment
         Robot, command defaults and ``phi_c``.
-    table : pandas.DataFrame
-        Validated jumps (:func:`granbayes.load_jumps`).
+    table : pandas.DataFrame or Measurements
+        Validated jumps (:func:`granbayes.load_jumps`), or measurements of several kinds
+        (:func:`granbayes.load_measurements`): every kind enters one joint posterior.
     config : FitSettings, optional
         Terms, parametrisation, noise, sampler settings.
     seed : int
@@ -585,9 +633,9 @@ def fit(
     """
     config = config or FitSettings()
     priors = dict(priors if priors is not None else default_priors())
-    table = _prepare(table)
+    data = _as_measurements(table)
     backend = Path(backend) if backend is not None else None
-    specs = part_models(experiment, table, config, priors)
+    specs = part_models(experiment, data, config, priors)
     warms = [
         _warm_positions(model, warm_start, float(model.phis[0]))
         if warm_start is not None and config.phi_mode == "per_phi"
@@ -595,7 +643,7 @@ def fit(
         for _, model, _ in specs
     ]
     parts = _run_parts(specs, config, _seeds(seed, len(specs)), backend, resume, warms, progress)
-    return _assemble(parts, experiment, table, config, priors, seed, data_source)
+    return _assemble(parts, experiment, data, config, priors, seed, data_source)
 
 
 def _warm_positions(
@@ -615,12 +663,12 @@ def _warm_positions(
     n = at.sizes["chain"] * at.sizes["draw"]
     rows = np.arange(n)
     if best is not None:
-        at_phi = np.isclose(parent["observed_data"]["phi"].values, phi)
-        ll = parent["log_likelihood"]["height_mm"].values[..., at_phi].sum(axis=-1)
+        ll_units, unit_phi = stats.unit_log_likelihood(parent)
+        ll = ll_units[..., np.isclose(unit_phi, phi)].sum(axis=-1)
         rows = np.argsort(-np.nan_to_num(ll.reshape(-1), nan=-np.inf), kind="stable")[:best]
     columns = []
-    for name, coord in zip(model.coordinate_names, model.coordinate_priors, strict=True):
-        pname = "sigma_mm" if name.startswith("sigma_mm") else name
+    for c in model.coordinates:
+        pname, coord = c.parameter, c.prior
         if pname in at:
             values = at[pname].values.reshape(-1)[rows]
         else:
@@ -734,7 +782,7 @@ def screen_many(
     if any(c.phi_mode != "per_phi" for c in configs):
         raise ValueError("screening needs phi_mode='per_phi'")
     priors = dict(priors if priors is not None else default_priors())
-    table = _prepare(table)
+    table = _as_measurements(table)
     names = parent.attrs.get("parameters", "[]")  # JSON text (netCDF attributes)
     parent_names = set(json.loads(names) if isinstance(names, str) else names)
     problems, owner, failed = [], [], set()
@@ -747,8 +795,8 @@ def screen_many(
                 continue
             new = np.array(
                 [
-                    not (n.startswith("sigma_mm") or n in parent_names)
-                    for n in model.coordinate_names
+                    j < model.n_law and c.parameter not in parent_names
+                    for j, c in enumerate(model.coordinates)
                 ]
             )
             problems.append((model, warm, new, np.random.default_rng(part_seed)))
@@ -829,38 +877,25 @@ def _screen_searches(problems: Sequence[tuple], n_rounds: int) -> list[float]:
     ]
 
 
-def _replicate(part: FitPart, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Simulated mean heights and noisy replicates for the kept draws: (chain, draw, obs).
-
-    The simulated heights are those the sampler computed for the draws (their blobs); the
-    replicates add one draw of the observation noise each.
-    """
-    c, d, ndim = part.run.samples.shape
-    obs = part.model.obs
-    mean = part.config_heights_mm.reshape(c * d, -1)[:, obs.config_of_obs]
-    sigma = part.model._sigma_of(part.run.samples.reshape(-1, ndim), obs)
-    rep = part.model.add_noise(mean, sigma, np.random.default_rng(seed))
-    return mean.reshape(c, d, -1), rep.reshape(c, d, -1)
-
-
-def data_hash(experiment: Experiment, table: pd.DataFrame) -> str:
-    """SHA-256 of the experiment settings and the jumps table (provenance).
+def data_hash(experiment: Experiment, table: pd.DataFrame | Measurements) -> str:
+    """SHA-256 of the experiment settings and the measurements (provenance).
 
     Parameters
     ----------
     experiment : Experiment
         Robot, command defaults and ``phi_c``.
-    table : pandas.DataFrame
-        The jumps.
+    table : pandas.DataFrame or Measurements
+        The jumps, or the measurements of every kind.
 
     Returns
     -------
     str
         Hexadecimal digest.
     """
+    text = table.hash_text() if isinstance(table, Measurements) else table.to_csv(index=False)
     h = hashlib.sha256()
     h.update(repr((experiment.robot, experiment.command, experiment.phi_c)).encode())
-    h.update(table.to_csv(index=False).encode())
+    h.update(text.encode())
     return h.hexdigest()
 
 
@@ -943,24 +978,64 @@ def _warnings(parts: list[FitPart], config: FitSettings) -> list[str]:
     return out
 
 
+def _block_rows(data: Measurements, model: JumpModel) -> list[np.ndarray]:
+    """For each block of ``model`` (fitted to ``data``), the rows of its table in the fit's."""
+    return [data.origin[block.kind] for block in model.blocks]
+
+
+def _unit_columns(full: Measurements, units: np.ndarray, model: JumpModel) -> list[np.ndarray]:
+    """For each block of ``model``, its units numbered within its kind in the whole fit."""
+    out, start = [], 0
+    for block in model.blocks:
+        mine = units[start : start + block.n_units]
+        out.append(mine - full.offset(block.kind))
+        start += block.n_units
+    return out
+
+
+def _predictive_arrays(
+    full: Measurements, shape: tuple[int, ...], names: Sequence[tuple[str, str, str]]
+) -> dict[str, tuple[list[str], np.ndarray]]:
+    """NaN arrays (shape + one element axis) of every (variable, kind, dimension)."""
+    return {
+        name: ([dim], np.full((*shape, len(full.tables[kind])), np.nan))
+        for name, kind, dim in names
+    }
+
+
+def _predictive_names(parts: list[FitPart]) -> list[tuple[str, str, str]]:
+    """(variable, kind, dimension) of every block's predictive variables, first seen first."""
+    seen: dict[str, tuple[str, str, str]] = {}
+    for part in parts:
+        for block in part.model.blocks:
+            for name, dim in block.predictive_dims.items():
+                seen.setdefault(name, (name, block.kind, dim))
+    return list(seen.values())
+
+
 def _prior_draws(
-    parts: list[FitPart], phis: np.ndarray, n_jump: int, config: FitSettings, seed: int
+    parts: list[FitPart], phis: np.ndarray, full: Measurements, config: FitSettings, seed: int
 ) -> tuple[dict, dict]:
-    """Prior draws per volume fraction [SI] and the heights simulated from them [mm]."""
+    """Prior draws per volume fraction [SI] and the measurements simulated from them."""
     n = config.n_prior_draws
-    names = (*parts[0].model.parameters, "sigma_mm")
+    values_of = [p.model.parameter_values(np.zeros((1, p.model.ndim)), phis) for p in parts]
+    names = list(dict.fromkeys(k for v in values_of for k in v))
     prior = {name: np.full((1, n, len(phis)), np.nan) for name in names}
-    prior_pred = np.full((1, n, n_jump), np.nan)
+    replicated = [v for v in _predictive_names(parts) if not v[0].endswith("_sim_mm")]
+    prior_pred = _predictive_arrays(full, (1, n), replicated)
     for part, part_seed in zip(parts, _seeds(seed + 2, len(parts)), strict=True):
         rng = np.random.default_rng(part_seed)
         u = part.model.sample_prior(rng, n)
         values = part.model.parameter_values(u, phis)
         cols = np.searchsorted(phis, part.model.phis)
-        for name in names:
-            prior[name][0][:, cols] = values[name][:, cols]
-        _, rep = part.model.sample_predictive(u, rng)
-        prior_pred[0][:, part.jumps] = rep
-    return prior, {"height_mm": prior_pred}
+        for name, v in values.items():
+            prior[name][0][:, cols] = v[:, cols]
+        rows = _block_rows(part.data, part.model)
+        for block_rows, reps in zip(rows, part.model.predictive(u, rng), strict=True):
+            for name, rep in reps.items():
+                if name in prior_pred:
+                    prior_pred[name][1][0][:, block_rows] = rep
+    return prior, prior_pred
 
 
 @dataclass(frozen=True)
@@ -969,30 +1044,37 @@ class _Draws:
 
     posterior: dict[str, np.ndarray]  # parameter [SI] -> (chain, draw, phi) or (..., order)
     dims: dict[str, list[str]]  # the dimension after (chain, draw) of each posterior variable
-    log_likelihood: np.ndarray  # (chain, draw, jump)
-    height_sim_mm: np.ndarray  # (chain, draw, jump), simulated (no noise) [mm]
-    height_mm: np.ndarray  # (chain, draw, jump), replicated with noise [mm]
+    log_likelihood: dict[str, tuple[list[str], np.ndarray]]  # per kind: (chain, draw, unit)
+    predictive: dict[str, tuple[list[str], np.ndarray]]  # (chain, draw, row of its kind)
     lp: np.ndarray  # (chain, draw, run): log-probability of each run's walkers
     log_prior: np.ndarray  # (chain, draw): prior density of the values, summed over runs
 
 
 def _draws(
-    parts: list[FitPart], phis: np.ndarray, n_jump: int, config: FitSettings, seed: int
+    parts: list[FitPart], phis: np.ndarray, full: Measurements, config: FitSettings, seed: int
 ) -> _Draws:
-    """Every run's kept draws mapped onto the fit's volume fractions and jumps.
+    """Every run's kept draws mapped onto the fit's volume fractions and units.
 
     A run fills the columns of its own volume fractions (``per_phi``: one each) and its own
-    jumps; the replicated heights of run ``i`` use the ``i``-th seed derived from ``seed``.
+    units and rows; the replicated measurements of run ``i`` use the ``i``-th seed derived
+    from ``seed``.
     """
     n_chain, n_draw = _common_shape(parts)
-    names = parts[0].model.parameters
-    post: dict[str, np.ndarray] = {
-        n: np.full((n_chain, n_draw, len(phis)), np.nan) for n in (*names, "sigma_mm")
-    }
+    values_of = [p.model.parameter_values(np.zeros((1, p.model.ndim)), phis) for p in parts]
+    names = list(dict.fromkeys(k for v in values_of for k in v))
+    post: dict[str, np.ndarray] = {n: np.full((n_chain, n_draw, len(phis)), np.nan) for n in names}
     dims: dict[str, list[str]] = {n: ["phi"] for n in post}
-    loglik = np.full((n_chain, n_draw, n_jump), np.nan)
-    sim = np.full_like(loglik, np.nan)
-    rep = np.full_like(loglik, np.nan)
+    loglik: dict[str, tuple[list[str], np.ndarray]] = {}
+    for part in parts:
+        for block in part.model.blocks:
+            loglik.setdefault(
+                block.variable,
+                (
+                    [block.unit_dim],
+                    np.full((n_chain, n_draw, full.n_units_of(block.kind)), np.nan),
+                ),
+            )
+    predictive = _predictive_arrays(full, (n_chain, n_draw), _predictive_names(parts))
     lp = np.full((n_chain, n_draw, len(parts)), np.nan)
     log_prior = np.zeros((n_chain, n_draw))
     for i, (part, rep_seed) in enumerate(zip(parts, _seeds(seed + 1, len(parts)), strict=True)):
@@ -1001,20 +1083,26 @@ def _draws(
         flat = samples.reshape(-1, samples.shape[-1])
         values = part.model.parameter_values(flat, phis)
         cols = np.searchsorted(phis, part.model.phis)
-        for n in post:
-            v = values[n].reshape(n_chain, n_draw, len(phis))
-            post[n][..., cols] = v[..., cols]
-        loglik[..., part.jumps] = _to_shape(part.log_lik, n_chain, n_draw)
-        trimmed = dataclasses.replace(
-            part,
-            run=dataclasses.replace(r, samples=samples, blobs=_to_shape(r.blobs, n_chain, n_draw)),
-        )
-        sim[..., part.jumps], rep[..., part.jumps] = _replicate(trimmed, rep_seed)
+        for n, v in values.items():
+            post[n][..., cols] = v.reshape(n_chain, n_draw, len(phis))[..., cols]
+        ll = _to_shape(part.log_lik, n_chain, n_draw)
+        start = 0
+        for block, units in zip(
+            part.model.blocks, _unit_columns(full, part.units, part.model), strict=True
+        ):
+            loglik[block.variable][1][..., units] = ll[..., start : start + block.n_units]
+            start += block.n_units
+        blobs = _to_shape(r.blobs, n_chain, n_draw)
+        extras = blobs.reshape(n_chain * n_draw, -1)[:, part.model.n_units :]
+        reps = part.model.predictive(flat, np.random.default_rng(rep_seed), extras)
+        for rows, block_reps in zip(_block_rows(part.data, part.model), reps, strict=True):
+            for name, rep in block_reps.items():
+                predictive[name][1][..., rows] = rep.reshape(n_chain, n_draw, -1)
         lp[..., i] = _to_shape(r.log_prob, n_chain, n_draw)
         log_prior += part.model.log_prior_density(flat).reshape(n_chain, n_draw)
         if config.phi_mode == "quadratic":
             _add_coefficients(post, dims, part.model.coordinate_names, samples)
-    return _Draws(post, dims, loglik, sim, rep, lp, log_prior)
+    return _Draws(post, dims, loglik, predictive, lp, log_prior)
 
 
 def _add_coefficients(
@@ -1040,7 +1128,7 @@ def _add_coefficients(
 def _fit_attrs(
     parts: list[FitPart],
     experiment: Experiment,
-    observed: pd.DataFrame,
+    observed: Measurements,
     config: FitSettings,
     priors: Mapping[str, Prior],
     seed: int,
@@ -1069,10 +1157,15 @@ def _fit_attrs(
     }
 
 
+def _observed(data: Measurements) -> xr.Dataset:
+    """The observed data of every kind, each on its own dimensions (:data:`KINDS`)."""
+    return xr.merge([KINDS[k].to_observed(t) for k, t in data.tables.items()])
+
+
 def _assemble(
     parts: list[FitPart],
     experiment: Experiment,
-    table: pd.DataFrame,
+    data: Measurements,
     config: FitSettings,
     priors: Mapping[str, Prior],
     seed: int,
@@ -1083,22 +1176,22 @@ def _assemble(
     Their draws, prior draws and attributes in one DataTree
     (:func:`granbayes.datatree.build_datatree`).
     """
-    n_jump = len(table)
-    phis = np.unique(table["phi"].to_numpy(float))
-    draws = _draws(parts, phis, n_jump, config, seed)
-    observed = table.drop(columns=["jump"])
+    for part in parts:
+        part.data = data.select(part.units)
+    phis = data.phis
+    draws = _draws(parts, phis, data, config, seed)
     prior, prior_pred = {}, {}
     if config.n_prior_draws > 0:
-        prior, prior_pred = _prior_draws(parts, phis, n_jump, config, seed)
+        prior, prior_pred = _prior_draws(parts, phis, data, config, seed)
     dt = gdt.build_datatree(
         draws.posterior,
         dims=draws.dims,
         coords={"phi": phis, "order": np.arange(3), "run": [p.label for p in parts]},
         log_likelihood=draws.log_likelihood,
-        posterior_predictive={"height_mm": draws.height_mm, "height_sim_mm": draws.height_sim_mm},
-        observed=observed,
+        posterior_predictive=draws.predictive,
+        observed=_observed(data),
         sample_stats={"lp": draws.lp},
-        attrs=_fit_attrs(parts, experiment, observed, config, priors, seed, data_source),
+        attrs=_fit_attrs(parts, experiment, data, config, priors, seed, data_source),
         stats_dims={"lp": ["run"]},
         prior=prior,
         prior_predictive=prior_pred,
@@ -1192,7 +1285,8 @@ def compare_commands(
     if shared.config.phi_mode != "per_phi":
         raise ValueError("compare_commands needs a per_phi fit")
     priors = dict(priors if priors is not None else default_priors())
-    table = _prepare(table)
+    table = table.reset_index(drop=True)
+    table = table.assign(jump=np.arange(len(table)))
     config = dataclasses.replace(
         shared.config,
         sampler=dataclasses.replace(

@@ -29,11 +29,12 @@ import xarray as xr
 
 from . import datatree as gdt
 from . import stats
-from .commands import SETTINGS as SETTING_COLUMNS
+from ._measurements import Measurements
 from .commands import CommandSettings
 from .errors import InputError
 from .experiment import Experiment, Robot
 from .fitting import FitSettings, part_models
+from .kinds import KINDS, measurements
 from .likelihood import JumpModel
 from .priors import Prior
 
@@ -165,24 +166,39 @@ class SavedFit:
 
         One row per jump: ``phi``, ``command``, the settings, ``height_mm`` and the other
         columns of ``jumps.csv``.
+
+        Raises
+        ------
+        InputError
+            If the fit has no jump heights, or their coordinates are incomplete.
+        """
+        table = self.measurements().tables.get("heights")
+        if table is None:
+            raise InputError("the fit has no jump heights", file=self.source)
+        return table
+
+    def measurements(self) -> Measurements:
+        """Every measurement the fit was made of, read back from ``observed_data``.
+
+        Returns
+        -------
+        Measurements
+
+        Raises
+        ------
+        InputError
+            If a kind's observed data lack a coordinate it needs.
         """
         obs = self.datatree["observed_data"].to_dataset()
-        cols = {
-            str(name): obs[name].values
-            for name in obs.coords
-            if name != "jump" and obs[name].dims == ("jump",)
-        }
-        table = pd.DataFrame(cols)
-        table["height_mm"] = obs["height_mm"].values.astype(float)
-        missing = [c for c in ("phi", "command", *SETTING_COLUMNS) if c not in table]
-        if missing:
-            raise InputError(
-                f"observed_data lacks the jump coordinate(s) {', '.join(missing)}",
-                file=self.source,
-            )
-        table["phi"] = table["phi"].astype(float)
-        table["command"] = table["command"].astype(str)
-        return table
+        tables = {}
+        for name, kind in KINDS.items():
+            try:
+                table = kind.from_observed(obs)
+            except KeyError as exc:
+                raise InputError(str(exc).strip("'\""), file=self.source) from None
+            if table is not None:
+                tables[name] = table
+        return measurements(tables)
 
     def diagnostics(self) -> pd.DataFrame:
         """Per run: autocorrelation times, R-hat, ESS, chain length, convergence."""
@@ -208,7 +224,7 @@ class SavedFit:
             saved by an incompatible granbayes version).
         """
         if not self._models:
-            specs = part_models(self.experiment, self.observed(), self.config, self.priors)
+            specs = part_models(self.experiment, self.measurements(), self.config, self.priors)
             runs = _json_attr(self.datatree, "runs")
             for (label, model, _), run in zip(specs, runs, strict=False):
                 if label != run["label"] or list(model.coordinate_names) != run["coordinates"]:

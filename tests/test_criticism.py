@@ -62,9 +62,14 @@ def _table(effect: dict[str, float], seed: int = 3) -> pd.DataFrame:
     )
 
 
-def _fit_key(data: pd.DataFrame, config, seed: int) -> tuple:
-    """What determines a fit inside ``diagnose``: the jumps, terms, step cap and seed."""
-    return (tuple(data.index), config.terms, config.sampler.max_steps, seed)
+def _fit_key(data, config, seed: int) -> tuple:
+    """What determines a fit inside ``diagnose``: the jumps, terms, step cap and seed.
+
+    ``data`` is a jumps table or :class:`granbayes.Measurements` (its rows of the jumps
+    table the diagnosis started from).
+    """
+    rows = data.origin["heights"] if hasattr(data, "origin") else data.index
+    return (tuple(rows), config.terms, config.sampler.max_steps, seed)
 
 
 @pytest.fixture(scope="module")

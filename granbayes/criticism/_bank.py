@@ -18,11 +18,14 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
+from .._measurements import Measurements
 from .._search import drive
 from ..experiment import Experiment
 from ..fitting import (
     FitResult,
     FitSettings,
+    _as_measurements,
+    _held_out,
     _run_parts,
     _warm_positions,
     fit,
@@ -30,7 +33,7 @@ from ..fitting import (
     screen_many,
 )
 from ..forces import TERMS, terms_of
-from ..likelihood import Observations, evaluate_models
+from ..likelihood import evaluate_models
 from ..priors import Prior, default_priors
 from ..sampler import ProgressInfo
 from ._record import FitRecord
@@ -46,8 +49,9 @@ class FitBank:
     Parameters
     ----------
     experiment : Experiment
-    table : pandas.DataFrame
-        The jumps.
+    table : pandas.DataFrame or Measurements
+        The jumps, or measurements of several kinds (every fit is joint over them; units
+        of leave-one-out are numbered as in :class:`~granbayes.Measurements`).
     config : DiagnoseSettings
     priors : mapping, optional
     seed : int
@@ -64,7 +68,7 @@ class FitBank:
     def __init__(
         self,
         experiment: Experiment,
-        table: pd.DataFrame,
+        table: pd.DataFrame | Measurements,
         config: DiagnoseSettings,
         priors: Mapping[str, Prior] | None,
         seed: int,
@@ -72,7 +76,10 @@ class FitBank:
         log: Callable[..., None],
         progress: Callable[[str, ProgressInfo], None] | None = None,
     ) -> None:
-        self.experiment, self.table, self.config = experiment, table, config
+        self.experiment, self.config = experiment, config
+        self.data = _as_measurements(table)
+        #: One row per unit of leave-one-out: ``kind``, ``unit``, ``phi``, ``command``.
+        self.units = self.data.units
         self.priors, self.seed, self.data_source, self.log = priors, seed, data_source, log
         self.progress = progress
         self.fits: dict[tuple[str, ...], FitResult] = {}
@@ -119,7 +126,7 @@ class FitBank:
         warm = self.fits[parent].datatree if parent is not None else None
         return fit(
             self.experiment,
-            self.table,
+            self.data,
             self._fit_config(key, 2**attempt),
             seed=self._law_seed(key, attempt),
             priors=self.priors,
@@ -224,7 +231,7 @@ class FitBank:
             with self._timed("screening"):
                 gains = screen_many(
                     self.experiment,
-                    self.table,
+                    self.data,
                     [self._fit_config(k) for k in todo],
                     self.fits[terms_of(parent)].datatree,
                     seeds=[self._law_seed(k, 99) for k in todo],
@@ -347,10 +354,10 @@ class FitBank:
     ) -> list[np.ndarray]:
         """Refits without some jumps, all sampled side by side; their held-out densities.
 
-        A request ``(law, phi, left_out)`` refits law ``law`` on the jumps of volume
+        A request ``(law, phi, left_out)`` refits law ``law`` on the measurements of volume
         fraction ``phi`` (``per_phi`` laws are independent across volume fractions) without
-        the rows ``left_out`` of the jumps table, warm-started from the law's full
-        posterior at ``phi``, with lighter settings: two ensembles (one from the full
+        the units ``left_out`` (jumps, tracked jumps, intrusion tests), warm-started from
+        the law's full posterior at ``phi``, with lighter settings: two ensembles (one from the full
         posterior, one dispersed) and half the effective sample size, enough for a
         posterior mean of the held-out densities. Every request is one run of
         :func:`granbayes.sampler.run_side_by_side`: one simulator call per round for all.
@@ -366,15 +373,15 @@ class FitBank:
             Per request, the log predictive density [nats] of each left-out row (in the
             order given), ``log mean_s p(y | theta_s)`` over the refit's draws.
         """
-        t = self.table
+        unit_phi = self.units["phi"].to_numpy(float)
         specs, configs, seeds, warms, outs = [], [], [], [], []
         for key, phi, left_out in requests:
             config = self._fit_config(key)
             s = config.sampler
             config = replace(config, sampler=replace(s, n_ensembles=2, min_ess=s.min_ess / 2))
-            train = t[(t["phi"] == phi) & ~t.index.isin(left_out)]
+            keep = (unit_phi == phi) & ~np.isin(np.arange(len(unit_phi)), left_out)
             ((_, model, jumps),) = part_models(
-                self.experiment, train.reset_index(drop=True), config, self.priors_or_default
+                self.experiment, self.data.select(keep), config, self.priors_or_default
             )
             what = f" (held out: phi={phi:g}, rows {','.join(map(str, left_out))})"
             specs.append((" + ".join(key) + what, model, jumps))
@@ -391,12 +398,12 @@ class FitBank:
         out = []
         for part, left_out in zip(parts, outs, strict=True):
             flat = part.run.samples.reshape(-1, part.run.samples.shape[-1])
-            obs = Observations.from_table(t.loc[left_out])
-            out.append(part.model.log_predictive_density(flat, obs))
+            held_out = _held_out(part.model, self.data.select(left_out))
+            out.append(part.model.log_predictive_density(flat, held_out))
         return out
 
     def folds(self, phi: float) -> np.ndarray:
-        """The K-fold assignment of the jumps at ``phi`` (stratified by command), by row.
+        """The K-fold assignment of the units at ``phi`` (stratified by kind and command).
 
         Parameters
         ----------
@@ -406,13 +413,13 @@ class FitBank:
         Returns
         -------
         ndarray of int
-            Fold of each jump of the table (-1 at other volume fractions).
+            Fold of each unit (-1 at other volume fractions).
         """
-        t, k = self.table, self.config.kfold
+        t, k = self.units, self.config.kfold
         rng = np.random.default_rng([self.seed, round(phi * 1e6)])
         folds = np.full(len(t), -1)
         at = t[t["phi"] == phi]
-        for _, idx in at.groupby("command").indices.items():
+        for _, idx in at.groupby(["kind", "command"], dropna=False).indices.items():
             rows = at.index.to_numpy()[idx]
             folds[rows] = rng.permutation(len(rows)) % k
         return folds
@@ -452,7 +459,7 @@ class Pointwise:
 
     def __call__(self, keys: Sequence[tuple[str, ...]]) -> tuple[list[np.ndarray], str]:
         bank, cfg = self.bank, self.bank.config
-        t = bank.table
+        t = bank.units
         matched = dict(zip(keys, bank.moment_matched_many(keys), strict=True))
         bad = sorted(set().union(*(np.flatnonzero(~m[1]).tolist() for m in matched.values())))
         n_matched = max(m[2] for m in matched.values())

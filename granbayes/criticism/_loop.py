@@ -248,7 +248,8 @@ def diagnose(
     Diagnosis
     """
     cfg = config or DiagnoseSettings()
-    table = table.reset_index(drop=True)
+    if isinstance(table, pd.DataFrame):
+        table = table.reset_index(drop=True)
     bank = FitBank(experiment, table, cfg, priors, seed, data_source, log, progress)
     pointwise = Pointwise(bank)
     base = terms_of(cfg.baseline)

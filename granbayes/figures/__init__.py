@@ -10,6 +10,8 @@ by ``arviz-plots`` (those come from ``pyplot``: close them once saved).
 * A fit: :func:`plot_predictive`, :func:`plot_corner`, :func:`plot_parameters_vs_phi`,
   :func:`plot_prior_posterior`, :func:`plot_loo_pit`, :func:`plot_trace`,
   :func:`plot_rank`, :func:`plot_sbc_ecdf`.
+* Other kinds of measurement: :func:`plot_tracked_jumps` (trajectories over predictive
+  bands, residuals against time), :func:`plot_intrusions` (force-depth curves per speed).
 * Criticism: :func:`plot_residual_heatmap`.
 * The analyses: :func:`plot_heights_vs_phi`, :func:`plot_misfit_maps`,
   :func:`plot_valleys`, :func:`plot_optimum_vs_frequency`, :func:`plot_delay_curves`,
@@ -47,6 +49,7 @@ from ._fit import (
     plot_trace,
 )
 from ._jumps import REGIME_COLORS, plot_hard_ground, plot_jumps, plot_trajectory
+from ._kinds import plot_intrusions, plot_tracked_jumps
 from ._style import data_label, param_label, param_unit, source_label
 
 __all__ = [
@@ -58,6 +61,8 @@ __all__ = [
     "panel_grid",
     "param_label",
     "param_unit",
+    "plot_intrusions",
+    "plot_tracked_jumps",
     "plot_added_mass",
     "plot_coefficients_vs_phi",
     "plot_corner",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+import numpy as np
 import xarray as xr
 
 from ..forces import parameter
@@ -33,9 +34,8 @@ def data_label(dt: xr.DataTree) -> str:
     str
     """
     obs = dt.observed_data.to_dataset()
-    if "source" not in obs.coords:
-        return ""
-    return source_label(obs["source"].values)
+    names = [c for c in obs.coords if c == "source" or str(c).endswith("_source")]
+    return source_label(np.concatenate([obs[c].values for c in names])) if names else ""
 
 
 def source_label(sources: Iterable[object]) -> str:

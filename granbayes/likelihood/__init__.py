@@ -8,7 +8,7 @@ and the blocks of the library's kinds (:class:`HeightBlock` with its grouped
 ``_blocks`` (the interface), ``_heights`` (jump heights).
 """
 
-from ._blocks import Block, Coordinate, JumpRequest, LawValues, Simulated
+from ._blocks import Block, Coordinate, JumpRequest, Law, ObservationSettings, Simulated
 from ._heights import HeightBlock, NoiseFamily, Observations, SigmaMode
 from ._model import Evaluation, JumpModel, PhiMode, evaluate_models
 
@@ -19,8 +19,9 @@ __all__ = [
     "HeightBlock",
     "JumpModel",
     "JumpRequest",
-    "LawValues",
+    "Law",
     "NoiseFamily",
+    "ObservationSettings",
     "Observations",
     "PhiMode",
     "SigmaMode",

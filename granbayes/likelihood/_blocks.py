@@ -15,17 +15,61 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
+import pandas as pd
 
 from ..commands import CommandProgram
 from ..priors import Prior
 
-__all__ = ["Block", "Coordinate", "JumpRequest", "LawValues", "Simulated"]
+__all__ = ["Block", "Coordinate", "JumpRequest", "Law", "ObservationSettings", "Simulated"]
 
-#: The force law's physical parameter values at given volume fractions:
-#: ``law(phis)[name]`` has shape ``(n_walkers, len(phis))`` [SI].
-LawValues = Callable[[np.ndarray], Mapping[str, np.ndarray]]
+
+class Law:
+    """The force law of n walkers, as the blocks see it (made by the model).
+
+    Parameters
+    ----------
+    values : callable
+        ``values(phis)[name]``: every fitted force parameter [SI] at volume fractions
+        ``phis``, shape ``(n, len(phis))``.
+    rows : callable
+        ``rows(phis)``: the integrator rows (robot, phi and every force parameter,
+        ``granbayes.simulator.build_rows`` layout) of every (walker, phi) pair,
+        walker-major, shape ``(n * len(phis), ROW_SIZE)``.
+    """
+
+    def __init__(
+        self,
+        values: Callable[[np.ndarray], Mapping[str, np.ndarray]],
+        rows: Callable[[np.ndarray], np.ndarray],
+    ) -> None:
+        self.values = values
+        self.rows = rows
+
+
+@dataclass(frozen=True)
+class ObservationSettings:
+    """How the blocks model their measurements (the settings of every kind's noise).
+
+    Attributes
+    ----------
+    noise : {"normal", "student_t"}
+        Noise family of the jump heights.
+    nu : float
+        Student-t degrees of freedom.
+    sigma_mode : {"per_phi", "global"}
+        The heights' scatter per volume fraction or one for all.
+    max_offset_frames : float
+        The largest offset of a camera's clock from the command's [frames], marginalised
+        with a uniform prior over plus and minus this (tracked jumps).
+    """
+
+    noise: str = "normal"
+    nu: float = 4.0
+    sigma_mode: str = "per_phi"
+    max_offset_frames: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -119,6 +163,11 @@ class Block:
     variable: str = ""
 
     @property
+    def table(self) -> pd.DataFrame:
+        """The block's measurements, one row per record of its file."""
+        raise NotImplementedError
+
+    @property
     def n_units(self) -> int:
         """Number of units (leave-one-out is over units)."""
         raise NotImplementedError
@@ -126,6 +175,23 @@ class Block:
     @property
     def phis(self) -> np.ndarray:
         """Sorted distinct volume fractions of its measurements."""
+        raise NotImplementedError
+
+    def with_data(self, table: pd.DataFrame) -> Block:
+        """A block of other measurements of its kind under this block's coordinates.
+
+        Held-out units of a cross-validation, or a new experiment, scored with the fitted
+        block's noise parameters.
+
+        Parameters
+        ----------
+        table : pandas.DataFrame
+            Measurements of the block's kind at volume fractions it has parameters for.
+
+        Returns
+        -------
+        Block
+        """
         raise NotImplementedError
 
     def coordinates(self, priors: Mapping[str, Prior], phis: np.ndarray) -> list[Coordinate]:
@@ -148,7 +214,7 @@ class Block:
         """The jumps to simulate (``None``: the block needs no compiled simulation)."""
         return None
 
-    def log_lik(self, u: np.ndarray, law: LawValues, sim: Simulated | None) -> np.ndarray:
+    def log_lik(self, u: np.ndarray, law: Law, sim: Simulated | None) -> np.ndarray:
         """Pointwise log-likelihood of the block's units.
 
         Parameters
@@ -156,7 +222,7 @@ class Block:
         u : ndarray, shape (n, n_coordinates)
             The block's own coordinates (sampling coordinates) of n walkers.
         law : callable
-            The force law's values at given volume fractions (:data:`LawValues`).
+            The force law of the walkers (:class:`Law`).
         sim : Simulated or None
             The simulator's answer to :meth:`jump_request`.
 
@@ -185,6 +251,48 @@ class Block:
         """
         n = 0 if sim is None else sim.heights_mm.shape[0]
         return np.empty((n, 0))
+
+    def from_extras(self, extras: np.ndarray) -> Simulated | None:
+        """The simulation a draw's kept values stand for (see :meth:`n_extras`).
+
+        Parameters
+        ----------
+        extras : ndarray, shape (n, n_extras)
+            The values :meth:`extras` returned.
+
+        Returns
+        -------
+        Simulated or None
+            ``None`` if the kept values cannot replace a simulation.
+        """
+        return None
+
+    #: The dimension of each posterior-predictive variable of the block: one value per
+    #: row of :attr:`table`.
+    predictive_dims: ClassVar[Mapping[str, str]] = {}
+
+    def predictive(
+        self, u: np.ndarray, law: Law, sim: Simulated | None, rng: np.random.Generator
+    ) -> dict[str, np.ndarray]:
+        """Posterior- (or prior-) predictive replicates of the block's measurements.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, n_coordinates)
+            The block's coordinates of n draws.
+        law : callable
+            The force law of the walkers (:class:`Law`).
+        sim : Simulated or None
+            The simulator's answer to :meth:`jump_request` for the draws.
+        rng : numpy.random.Generator
+            Source of the replicate noise.
+
+        Returns
+        -------
+        dict of str to ndarray, shape (n, len(table))
+            Variables named in :attr:`predictive_dims`.
+        """
+        return {}
 
     def values(self, u: np.ndarray, phis: np.ndarray) -> dict[str, np.ndarray]:
         """The block's parameters [their units] at volume fractions ``phis``.

@@ -11,7 +11,7 @@ import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 import pandas as pd
@@ -19,7 +19,7 @@ from scipy.special import gammaln
 
 from ..commands import SETTINGS, CommandProgram, CommandSettings, build_command
 from ..priors import Prior, default_priors
-from ._blocks import Block, Coordinate, JumpRequest, LawValues, Simulated
+from ._blocks import Block, Coordinate, JumpRequest, Law, Simulated
 
 __all__ = ["HeightBlock", "NoiseFamily", "Observations", "SigmaMode"]
 
@@ -152,6 +152,13 @@ class HeightBlock(Block):
         self._coords: list[Coordinate] = []
         self._sigma = self.sigma_of
 
+    predictive_dims: ClassVar[Mapping[str, str]] = {"height_mm": "jump", "height_sim_mm": "jump"}
+
+    @property
+    def table(self) -> pd.DataFrame:
+        """The jumps."""
+        return self.obs.table
+
     @property
     def n_units(self) -> int:
         """Number of jumps."""
@@ -244,18 +251,20 @@ class HeightBlock(Block):
             return self.sigma_at(u, fitted)[:, index]
         return np.repeat(self.sigma_at(u, phis[:1]), len(phis), axis=1)
 
-    def with_data(self, observations: Observations) -> HeightBlock:
+    def with_data(self, observations: Observations | pd.DataFrame) -> HeightBlock:
         """A block of other jumps under this block's coordinates (held-out jumps, new data).
 
         Parameters
         ----------
-        observations : Observations
+        observations : Observations or pandas.DataFrame
             Jumps at volume fractions this block has a scatter for.
 
         Returns
         -------
         HeightBlock
         """
+        if isinstance(observations, pd.DataFrame):
+            observations = Observations.from_table(observations)
         other = HeightBlock(observations, noise=self.noise, nu=self.nu, sigma_mode=self.sigma_mode)
         other._coords = self._coords
         other._sigma = self.sigma_of
@@ -307,7 +316,7 @@ class HeightBlock(Block):
             eps = rng.standard_t(self.nu, mean_mm.shape)
         return mean_mm + sigma_mm * eps
 
-    def log_lik(self, u: np.ndarray, law: LawValues, sim: Simulated | None) -> np.ndarray:
+    def log_lik(self, u: np.ndarray, law: Law, sim: Simulated | None) -> np.ndarray:
         """Pointwise log-likelihood of the jumps given their simulated heights.
 
         Parameters
@@ -346,6 +355,46 @@ class HeightBlock(Block):
         ndarray, shape (n, n_configs)
         """
         return sim.heights_mm
+
+    def from_extras(self, extras: np.ndarray) -> Simulated:
+        """The simulated heights kept with every draw stand for its simulation.
+
+        Parameters
+        ----------
+        extras : ndarray, shape (n, n_configs)
+            Simulated height of every configuration [mm] (NaN where it failed).
+
+        Returns
+        -------
+        Simulated
+        """
+        return Simulated(extras, np.isfinite(extras))
+
+    def predictive(
+        self, u: np.ndarray, law: Law, sim: Simulated | None, rng: np.random.Generator
+    ) -> dict[str, np.ndarray]:
+        """Simulated heights and replicated measurements [mm] of every jump.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, n_coordinates)
+            The block's coordinates of n draws.
+        law : callable
+            The force law (unused: the heights carry it).
+        sim : Simulated
+            The simulated height of every configuration.
+        rng : numpy.random.Generator
+            Source of the replicate noise.
+
+        Returns
+        -------
+        dict of str to ndarray, shape (n, n_jumps)
+            ``height_sim_mm`` (no noise) and ``height_mm`` (plus one draw of the noise;
+            NaN where a simulation failed).
+        """
+        mean = sim.heights_mm[:, self.obs.config_of_obs]
+        rep = self.add_noise(mean, self._sigma(u, self.obs), rng)
+        return {"height_mm": rep, "height_sim_mm": mean}
 
     def values(self, u: np.ndarray, phis: np.ndarray) -> dict[str, np.ndarray]:
         """``sigma_mm`` [mm] at ``phis`` (NaN where it was not fitted).

@@ -32,7 +32,7 @@ from ..experiment import Experiment
 from ..forces import PARAMETERS, TERMS, terms_of
 from ..priors import Prior, default_priors
 from ..simulator import SolverSettings, build_rows, simulate_rows
-from ._blocks import Block, Coordinate, Simulated
+from ._blocks import Block, Coordinate, Law, Simulated
 from ._heights import HeightBlock, NoiseFamily, Observations, SigmaMode
 
 __all__ = ["Evaluation", "JumpModel", "PhiMode", "evaluate_models"]
@@ -177,6 +177,16 @@ class JumpModel:
                 coef_prior = Prior("uniform", -bound, bound, unit=f"{prior.unit} per phi^{order}")
                 coords.append(Coordinate(f"{name}:c{order}", name, coef_prior, order=order))
         return coords
+
+    @property
+    def coordinates(self) -> list[Coordinate]:
+        """Every sampled coordinate: the law's, then each block's, in column order."""
+        return list(self._coords)
+
+    @property
+    def n_law(self) -> int:
+        """Number of the force law's coordinates (the first columns)."""
+        return len(self._law)
 
     @property
     def coordinate_names(self) -> list[str]:
@@ -549,6 +559,50 @@ class JumpModel:
         mean, sigma, _ = self.mean_and_sigma(u, observations)
         return mean, self.add_noise(mean, sigma, rng)
 
+    def predictive(
+        self, u: np.ndarray, rng: np.random.Generator, extras: np.ndarray | None = None
+    ) -> list[dict[str, np.ndarray]]:
+        """Predictive replicates of every block's measurements for draws ``u``.
+
+        Blocks whose kept values (``extras``, the sampler's blobs) stand for their
+        simulation use them; the others are simulated, all in one simulator call. The
+        blocks draw their noise from ``rng`` in block order.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Draws (posterior or prior).
+        rng : numpy.random.Generator
+            Source of the replicate noise.
+        extras : ndarray, shape (n, n_extras), optional
+            The draws' kept values (:meth:`evaluate_models`' ``extras``).
+
+        Returns
+        -------
+        list of dict of str to ndarray
+            Per block, its :meth:`Block.predictive` variables, shape (n, rows of its
+            table).
+        """
+        u = np.atleast_2d(u)
+        known: list[Simulated | None] = [None] * len(self.blocks)
+        if extras is not None:
+            start = 0
+            for i, block in enumerate(self.blocks):
+                stop = start + block.n_extras()
+                if stop > start:
+                    known[i] = block.from_extras(extras[:, start:stop])
+                start = stop
+        requests = [
+            None if k is not None else r for k, r in zip(known, self._requests, strict=True)
+        ]
+        sims = _simulate([(self, u, requests)])[0]
+        law = _law_of(self, u)
+        out = []
+        for i, block in enumerate(self.blocks):
+            sim = known[i] if known[i] is not None else sims[i]
+            out.append(block.predictive(self.block_coordinates(u, i), law, sim, rng))
+        return out
+
     def __call__(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Log-posterior and pointwise log-likelihood of walker positions.
 
@@ -618,9 +672,9 @@ class Evaluation:
     extras: np.ndarray
 
 
-def _law_of(model: JumpModel, u: np.ndarray):
-    """The force law of walkers ``u`` as a function of the volume fraction."""
-    return lambda phis: model.law_values(u, phis)
+def _law_of(model: JumpModel, u: np.ndarray) -> Law:
+    """The force law of walkers ``u`` as the blocks see it."""
+    return Law(lambda phis: model.law_values(u, phis), lambda phis: model.rows_for(u, phis))
 
 
 def _simulate(jobs: Sequence[tuple[JumpModel, np.ndarray, Sequence]]) -> list[list]:

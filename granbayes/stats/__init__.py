@@ -12,8 +12,11 @@ from here.
 * Residual cells of jump heights (one command at one volume fraction and setting,
   :data:`CELL_KEYS`): :func:`residual_table`, :func:`misfit_threshold`,
   :func:`describe_cell`, :func:`rmse_mm`, :func:`cell_statistics`,
-  :func:`mean_discrepancy`, :func:`observed_jumps`.
-* Predictive accuracy: :func:`loo`, :func:`elpd_difference`, :func:`compare`,
+  :func:`mean_discrepancy`, :func:`observed_jumps`; of the other kinds of measurement
+  (phases of tracked jumps, depth bins of intrusion curves): :func:`trajectory_cells`,
+  :func:`intrusion_cells`, :func:`predictive_cells`.
+* Predictive accuracy: :func:`loo` (every unit of every kind of measurement:
+  :func:`unit_log_likelihood`, :func:`unit_phi_name`), :func:`elpd_difference`, :func:`compare`,
   :func:`cell_loo`, :func:`loo_pit`, :func:`pit_uniformity`, and the fallback for
   unreliable PSIS, :func:`moment_match` (Paananen et al. 2021, batched over observations).
 * Summaries: :func:`summary_table`, :func:`run_diagnostics`, :func:`by_ensemble`,
@@ -35,7 +38,17 @@ from ._cells import (
     rmse_mm,
 )
 from ._intervals import CI_PROB, eti_probs, fmt_interval, fmt_triple, interval
-from ._loo import cell_loo, compare, elpd_difference, loo, loo_pit, pit_uniformity
+from ._kind_cells import intrusion_cells, predictive_cells, trajectory_cells
+from ._loo import (
+    cell_loo,
+    compare,
+    elpd_difference,
+    loo,
+    loo_pit,
+    pit_uniformity,
+    unit_log_likelihood,
+    unit_phi_name,
+)
 from ._moment_matching import MomentMatch, moment_match, moment_match_search
 from ._sbc import COVERAGE_LEVELS, normalised_ranks, sbc_uniformity, summarize_ranks
 from ._summaries import (
@@ -71,6 +84,7 @@ __all__ = [
     "fmt_triple",
     "identifiability_table",
     "interval",
+    "intrusion_cells",
     "loo",
     "loo_pit",
     "mean_discrepancy",
@@ -84,11 +98,15 @@ __all__ = [
     "pit_uniformity",
     "posterior_draws",
     "posterior_intervals",
+    "predictive_cells",
     "residual_table",
     "rmse_mm",
     "run_diagnostics",
     "sbc_uniformity",
     "spearman_rows",
     "summarize_ranks",
+    "trajectory_cells",
+    "unit_log_likelihood",
+    "unit_phi_name",
     "summary_table",
 ]

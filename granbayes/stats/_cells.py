@@ -54,7 +54,8 @@ def observed_jumps(dt: xr.DataTree) -> pd.DataFrame:
     pandas.DataFrame
     """
     obs = dt["observed_data"].to_dataset()
-    frame = pd.DataFrame({c: obs[c].values for c in obs.coords if c != "jump"})
+    on_jump = [c for c in obs.coords if obs[c].dims == ("jump",) and c != "jump"]
+    frame = pd.DataFrame({c: obs[c].values for c in on_jump})
     frame["height_mm"] = obs["height_mm"].values
     return frame
 
@@ -92,7 +93,7 @@ def residual_table(dt: xr.DataTree) -> pd.DataFrame:
     y = obs["height_mm"].values
     rep = pp["height_mm"].values.reshape(-1, len(y))
     sim = pp["height_sim_mm"].values.reshape(-1, len(y))
-    observed = pd.DataFrame({c: obs[c].values for c in obs.coords if c != "jump"})
+    observed = observed_jumps(dt).drop(columns="height_mm")
     keys = cell_keys(observed)
     cells = observed[keys].copy()
     cells["phi"] = cells["phi"].astype(float)

@@ -16,7 +16,7 @@ import pandas as pd
 import xarray as xr
 from arviz_stats.base import array_stats
 
-from ._cells import cell_keys
+from ._cells import cell_keys, observed_jumps
 from ._sbc import sbc_uniformity
 
 #: arviz-stats warns (UserWarning) whenever a Pareto k of PSIS-LOO exceeds its threshold.
@@ -31,15 +31,62 @@ def _ignore_pareto_k_warning() -> None:
     warnings.filterwarnings("ignore", message=_PARETO_K_WARNING, category=UserWarning)
 
 
+def unit_phi_name(dim: str) -> str:
+    """The coordinate holding the volume fraction of each unit along ``dim``.
+
+    ``phi`` for jumps (``jump``), ``<dim>_phi`` for the units of the other kinds (a
+    DataTree group has one coordinate of each name).
+
+    Parameters
+    ----------
+    dim : str
+        A unit dimension of a fit's ``log_likelihood`` group.
+
+    Returns
+    -------
+    str
+    """
+    return "phi" if dim == "jump" else f"{dim}_phi"
+
+
+def unit_log_likelihood(dt: xr.DataTree) -> tuple[np.ndarray, np.ndarray]:
+    """The pointwise log-likelihood of every unit of every kind, and their phi.
+
+    Every variable of the ``log_likelihood`` group (one per kind of measurement, over its
+    unit dimension), concatenated in the group's order: the units of the fit's joint
+    leave-one-out.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit.
+
+    Returns
+    -------
+    log_lik : ndarray, shape (chain, draw, n_units)
+    phi : ndarray, shape (n_units,)
+        Volume fraction of every unit.
+    """
+    ll = dt["log_likelihood"].to_dataset()
+    arrays, phis = [], []
+    for name in ll.data_vars:
+        var = ll[name]
+        dim = var.dims[-1]
+        arrays.append(var.transpose("chain", "draw", dim).values)
+        phis.append(np.asarray(ll[unit_phi_name(dim)].values, dtype=float))
+    return np.concatenate(arrays, axis=-1), np.concatenate(phis)
+
+
 def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
-    """PSIS-LOO of the ``height_mm`` log-likelihood.
+    """PSIS-LOO of a fit: jump heights, or every unit of every kind of measurement.
 
     Parameters
     ----------
     dt : xarray.DataTree or ndarray
-        A fit's DataTree, or a pointwise log-likelihood array of shape
-        ``(chain, draw, jump)`` (PSIS with relative efficiency 1: the kept draws are
-        thinned to roughly independent ones).
+        A fit's DataTree (with one kind, ArviZ's ``loo`` of its variable; with several,
+        the units of all, :func:`unit_log_likelihood`), or a pointwise log-likelihood
+        array of shape ``(chain, draw, unit)`` (PSIS with relative efficiency 1: the kept
+        draws are thinned to roughly independent ones).
 
     Returns
     -------
@@ -63,9 +110,12 @@ def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
             "good_k": good_k,
             "n_bad_k": int(np.sum(k > good_k)),
         }
+    if len(dt["log_likelihood"].data_vars) > 1:
+        return loo(unit_log_likelihood(dt)[0])
+    (var_name,) = dt["log_likelihood"].data_vars
     with warnings.catch_warnings():
         _ignore_pareto_k_warning()  # the k values are returned
-        res = az.loo(dt, pointwise=True, var_name="height_mm")
+        res = az.loo(dt, pointwise=True, var_name=var_name)
     k = np.asarray(res.pareto_k)
     good_k = float(res.good_k)
     return {
@@ -137,8 +187,7 @@ def cell_loo(dt: xr.DataTree) -> dict:
         As :func:`loo`, over cells (in the order of their keys).
     """
     ll = dt["log_likelihood"]["height_mm"].values
-    observed = dt["observed_data"].to_dataset()
-    frame = pd.DataFrame({c: observed[c].values for c in observed.coords if c != "jump"})
+    frame = observed_jumps(dt).drop(columns="height_mm")
     groups = frame.groupby(cell_keys(frame), sort=True).indices
     summed = np.stack([ll[..., np.asarray(idx)].sum(axis=-1) for idx in groups.values()], -1)
     return loo(summed)

@@ -1,0 +1,66 @@
+"""The entry of a kind of measurement in the registry (:data:`granbayes.kinds.KINDS`)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+import xarray as xr
+
+from ..experiment import Experiment
+from ..likelihood import Block, ObservationSettings
+
+__all__ = ["Kind"]
+
+
+@dataclass(frozen=True)
+class Kind:
+    """Everything about one kind of measurement.
+
+    Attributes
+    ----------
+    name : str
+        Registry key (``"heights"``); the name of ``granbayes fit --data``.
+    file : str
+        Its file in an experiment folder (``"jumps.csv"``).
+    description : str
+        One line for help texts and reports.
+    unit_column : str or None
+        The column naming its units of leave-one-out (``None``: every row is a unit).
+    unit_dim : str
+        The DataTree dimension of its units (its log-likelihood's).
+    load : callable
+        ``load(path, experiment) -> DataFrame``: read and validate the file.
+    block : callable
+        ``block(table, settings) -> Block``: its likelihood block for the measurements of
+        one model (:class:`granbayes.likelihood.ObservationSettings`).
+    to_observed : callable
+        ``to_observed(table) -> xarray.Dataset``: its observed data for a fit's DataTree
+        (data variables and their coordinates, on its own dimensions).
+    from_observed : callable
+        ``from_observed(dataset) -> DataFrame``: the table back from a DataTree's
+        ``observed_data`` (``None`` when the kind is absent).
+    cells : callable, optional
+        ``cells(datatree) -> DataFrame``: its residual cells (:mod:`granbayes.stats`).
+    figures : mapping of str to callable
+        Figure name (file stem) to ``figure(datatree) -> Figure`` (:mod:`granbayes.figures`).
+    """
+
+    name: str
+    file: str
+    description: str
+    unit_column: str | None
+    unit_dim: str
+    load: Callable[[Path, Experiment], pd.DataFrame]
+    block: Callable[[pd.DataFrame, ObservationSettings], Block]
+    to_observed: Callable[[pd.DataFrame], xr.Dataset]
+    from_observed: Callable[[xr.Dataset], pd.DataFrame | None]
+    cells: Callable[[xr.DataTree], pd.DataFrame] | None = None
+    figures: Mapping[str, Callable] = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        """Default: no figures."""
+        if self.figures is None:
+            object.__setattr__(self, "figures", {})

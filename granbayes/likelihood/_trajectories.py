@@ -1,0 +1,436 @@
+"""Tracked jumps: positions of the foot and the rod at a camera's frames, and their noise.
+
+A tracked jump is simulated once and its foot height ``x_f`` and rod displacement
+``x_r(t) - x_r(0)`` read at every frame from the integrator's dense output
+(physics-model.md section 5b). The observation model, per tracked jump:
+
+* **Clock offset.** The camera's clock is off the command's by an unknown ``delta``
+  (uniform over +/- ``max_offset_frames`` frame intervals): frame ``i`` shows the robot at
+  ``t_i + delta``. It is integrated out per jump, exactly for the model linearised in
+  ``delta`` within each frame interval: the positions and velocities are simulated at
+  ``t_i + k dt`` for every whole shift ``k`` (the frame grid extended by
+  ``max_offset_frames`` frames: no extra simulations, a few more frames), and within
+  ``|delta - k dt| <= dt / 2`` the prediction is ``x(t_i + k dt) + (delta - k dt) v``. The
+  log-likelihood is then quadratic in ``delta`` in each interval and its integral is a
+  difference of normal CDFs. The linearisation errs by ``a dt^2 / 8`` at most (0.03 mm at
+  1000 frames/s for an acceleration of 250 m/s^2).
+* **Autocorrelated frame noise.** Tracking errors drift over a few frames (a blurred
+  marker, a lighting change): per coordinate, the residuals are an Ornstein-Uhlenbeck
+  process of standard deviation ``frame_sd_<coordinate>_mm`` and correlation time
+  ``frame_tau_ms`` (shared by both coordinates): exact for any frame spacing, the
+  correlation of successive frames ``rho = exp(-dt / tau)``; its likelihood is that of the
+  whitened residuals ``(r_i - rho_i r_{i-1}) / (sd sqrt(1 - rho_i^2))`` (the AR(1) exact
+  likelihood; no library is needed for a first-order process: celerite2 would solve the
+  same tridiagonal system more generally, at the cost of a dependency and of a per-jump
+  Python loop over its solver).
+
+The unit of leave-one-out is a whole tracked jump: its frames are not exchangeable.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+import pandas as pd
+from scipy.special import log_ndtr
+from scipy.stats import truncnorm
+
+from ..commands import SETTINGS, CommandProgram, CommandSettings, build_command
+from ..priors import Prior
+from ._blocks import Block, Coordinate, JumpRequest, Law, ObservationSettings, Simulated
+
+__all__ = ["TrajectoryBlock"]
+
+#: The position columns a tracked jump may have, and their index in a frame's output.
+POSITIONS: tuple[str, ...] = ("x_foot_mm", "x_rod_mm")
+
+#: Default priors of the frame noise: a tracking error from 10 um to 10 mm, and a
+#: correlation time from white noise (10 us) to a drift over 100 ms.
+FRAME_PRIORS: dict[str, Prior] = {
+    "frame_sd_foot_mm": Prior(
+        "loguniform", 0.01, 10.0, unit="mm", why="tracking error of the foot's height"
+    ),
+    "frame_sd_rod_mm": Prior(
+        "loguniform", 0.01, 10.0, unit="mm", why="tracking error of the rod's displacement"
+    ),
+    "frame_tau_ms": Prior(
+        "loguniform", 0.01, 100.0, unit="ms", why="correlation time of the tracking error"
+    ),
+}
+_SD_OF = {"x_foot_mm": "frame_sd_foot_mm", "x_rod_mm": "frame_sd_rod_mm"}
+
+
+def log_diff_ndtr(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``log(Phi(b) - Phi(a))`` for ``a <= b``, accurate in both tails.
+
+    Parameters
+    ----------
+    a, b : ndarray
+        Lower and upper limits (broadcast).
+
+    Returns
+    -------
+    ndarray
+    """
+    a, b = np.broadcast_arrays(np.asarray(a, float), np.asarray(b, float))
+    # in the upper tail use the mirror image: Phi(b) - Phi(a) = Phi(-a) - Phi(-b)
+    flip = a > 0
+    lo = np.where(flip, -b, a)
+    hi = np.where(flip, -a, b)
+    lhi, llo = log_ndtr(hi), log_ndtr(lo)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = lhi + np.log1p(-np.exp(llo - lhi))
+    return np.where(hi > lo, out, -np.inf)
+
+
+class TrajectoryBlock(Block):
+    """Tracked jumps: frame positions with a clock offset and Ornstein-Uhlenbeck noise.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        Frames (``load_trajectories``): ``jump``, ``phi``, ``command``, ``t_s``,
+        ``x_foot_mm`` and/or ``x_rod_mm``, and the command settings.
+    settings : ObservationSettings, optional
+        ``max_offset_frames`` (and ``sigma_mode``: the noise per volume fraction, or
+        once).
+    """
+
+    kind = "trajectories"
+    unit_dim = "trajectory"
+    variable = "trajectory"
+
+    def __init__(self, table: pd.DataFrame, settings: ObservationSettings | None = None) -> None:
+        settings = settings or ObservationSettings()
+        self.settings = settings
+        self._table = table.reset_index(drop=True)
+        t = self._table
+        self.positions = tuple(c for c in POSITIONS if c in t.columns)
+        codes, _ = pd.factorize(t["jump"].astype(str), sort=False)
+        self._unit = np.asarray(codes, dtype=np.int64)
+        n = int(self._unit.max()) + 1 if len(self._unit) else 0
+        self._n_units = n
+        self._phis = np.unique(t["phi"].to_numpy(float))
+        order = np.argsort(self._unit, kind="stable")
+        self._order = order  # frames grouped by jump, time order within (validated)
+        self._starts = np.searchsorted(self._unit[order], np.arange(n))
+        first = order[self._starts]
+        self._unit_phi = t["phi"].to_numpy(float)[first]
+        programs: list[CommandProgram] = []
+        for i in first:
+            row = t.iloc[int(i)]
+            cs = CommandSettings(**{s: float(row[s]) for s in SETTINGS})
+            programs.append(build_command(str(row["command"]), cs))
+        self._programs = programs
+        # the frame grid of every jump: its frames' times shifted by whole intervals
+        self.k_max = math.ceil(settings.max_offset_frames)
+        times = t["t_s"].to_numpy(float)[order]
+        shifts = np.arange(-self.k_max, self.k_max + 1)
+        grids, index, dts = [], [], np.empty(n)
+        offset = 0
+        bounds = np.append(self._starts, len(order))
+        for j in range(n):
+            tj = times[bounds[j] : bounds[j + 1]]
+            dt = float(np.median(np.diff(tj))) if len(tj) > 1 else 1e-3
+            dts[j] = dt
+            wanted = tj[None, :] + shifts[:, None] * dt  # (shifts, frames)
+            key = np.round(wanted / (dt * 1e-6)).astype(np.int64)
+            uniq, inverse = np.unique(key, return_inverse=True)
+            grid = np.empty(len(uniq))
+            grid[inverse.reshape(-1)] = wanted.reshape(-1)
+            grids.append(grid)
+            index.append(inverse.reshape(wanted.shape) + offset)
+            offset += len(grid)
+        self._grids = grids
+        self._grid_index = (
+            np.concatenate(index, axis=1) if index else np.empty((len(shifts), 0), int)
+        )
+        self._dt = dts
+        self._frame_dt = dts[self._unit[order]]
+        self._y = {c: t[c].to_numpy(float)[order] for c in self.positions}
+        # spacing of each frame from the previous one of its jump (inf: the first)
+        gap = np.diff(times, prepend=np.nan)
+        gap[self._starts] = np.inf
+        self._gap_s = gap
+        self._coords: list[Coordinate] = []
+
+    # ------------------------------------------------------------------------------------
+    @property
+    def table(self) -> pd.DataFrame:
+        """The frames."""
+        return self._table
+
+    @property
+    def n_units(self) -> int:
+        """Number of tracked jumps."""
+        return self._n_units
+
+    @property
+    def phis(self) -> np.ndarray:
+        """Volume fractions of the tracked jumps."""
+        return self._phis
+
+    def coordinates(self, priors: Mapping[str, Prior], phis: np.ndarray) -> list[Coordinate]:
+        """The frame noise of each position column and its correlation time.
+
+        Per volume fraction of the tracked jumps (one each, ``sigma_mode="global"``).
+
+        Parameters
+        ----------
+        priors : mapping of str to Prior
+            Overrides of :data:`FRAME_PRIORS` by name.
+        phis : ndarray
+            Volume fractions of the whole model (unused).
+
+        Returns
+        -------
+        list of Coordinate
+        """
+        names = [_SD_OF[c] for c in self.positions] + ["frame_tau_ms"]
+        coords = []
+        for name in names:
+            prior = priors.get(name, FRAME_PRIORS[name])
+            if self.settings.sigma_mode == "global":
+                coords.append(Coordinate(name, name, prior))
+            else:
+                coords.extend(
+                    Coordinate(f"{name}[{phi:g}]", name, prior, phi=float(phi))
+                    for phi in self._phis
+                )
+        self._coords = coords
+        return list(coords)
+
+    def with_data(self, table: pd.DataFrame) -> TrajectoryBlock:
+        """Other tracked jumps under this block's coordinates.
+
+        Parameters
+        ----------
+        table : pandas.DataFrame
+            Frames at volume fractions this block has noise parameters for.
+
+        Returns
+        -------
+        TrajectoryBlock
+        """
+        other = TrajectoryBlock(table, self.settings)
+        other._coords = self._coords
+        return other
+
+    def jump_request(self) -> JumpRequest:
+        """One simulation per tracked jump, read at its frame grid."""
+        return JumpRequest(self._unit_phi, self._programs, self._grids)
+
+    def values(self, u: np.ndarray, phis: np.ndarray) -> dict[str, np.ndarray]:
+        """The noise parameters at ``phis`` (NaN where not fitted).
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, n_coordinates)
+            The block's coordinates.
+        phis : ndarray
+            Volume fractions.
+
+        Returns
+        -------
+        dict of str to ndarray, shape (n, len(phis))
+        """
+        out: dict[str, np.ndarray] = {}
+        for j, c in enumerate(self._coords):
+            arr = out.setdefault(c.parameter, np.full((u.shape[0], len(phis)), np.nan))
+            value = c.prior.to_value(u[:, j])
+            for i, phi in enumerate(phis):
+                if c.phi is None or math.isclose(c.phi, phi, abs_tol=1e-12):
+                    arr[:, i] = value
+        return out
+
+    def _per_frame(self, u: np.ndarray, name: str) -> np.ndarray:
+        """A noise parameter at every frame (jump order): (n, n_frames)."""
+        at = self.values(u, self._phis)[name]
+        if np.any(np.isnan(at)):
+            raise ValueError(f"no fitted {name} at some phi of these tracked jumps")
+        phi_index = np.searchsorted(self._phis, self._unit_phi)
+        return at[:, phi_index][:, self._unit[self._order]]
+
+    # ------------------------------------------------------------------------------------
+    def _whitened(self, u: np.ndarray, sim: Simulated):
+        """Whitened residuals ``a`` and velocities ``b`` per shift, and the log-determinant.
+
+        Returns ``a, b`` of shape (n, shifts, n_frames) summed later over both coordinates
+        (a list per coordinate) and ``logdet`` (n, n_frames) per coordinate.
+        """
+        tau_s = 1e-3 * self._per_frame(u, "frame_tau_ms")
+        with np.errstate(over="ignore"):
+            rho = np.exp(-self._gap_s[None, :] / tau_s)  # 0 at a jump's first frame
+        s = np.sqrt(1.0 - rho * rho)
+        out = []
+        for c in self.positions:
+            col = POSITIONS.index(c)
+            sd = self._per_frame(u, _SD_OF[c])
+            x = sim.frames[:, self._grid_index, col]  # (n, shifts, frames) [mm]
+            v = sim.frames[:, self._grid_index, 2 + col]  # [mm/s]
+            r = self._y[c][None, None, :] - x
+            prev_r = np.concatenate([r[..., :1] * 0.0, r[..., :-1]], axis=-1)
+            prev_v = np.concatenate([v[..., :1] * 0.0, v[..., :-1]], axis=-1)
+            scale = (sd * s)[:, None, :]
+            a = (r - rho[:, None, :] * prev_r) / scale
+            b = (v - rho[:, None, :] * prev_v) / scale
+            logdet = np.log(sd * s)
+            out.append((a, b, logdet))
+        return out
+
+    def _sums(self, values: np.ndarray) -> np.ndarray:
+        """Per-jump sums over the last (frame) axis."""
+        return np.add.reduceat(values, self._starts, axis=-1)
+
+    def _shift_terms(self, u: np.ndarray, sim: Simulated):
+        """Per walker, shift and jump: the quadratic form in ``eps = delta - k dt``.
+
+        ``ll(eps) = C - (A - 2 eps B + eps^2 D) / 2``; returns ``C, A, B, D`` of shape
+        (n, shifts, jumps).
+        """
+        A = B = D = 0.0
+        C = 0.0
+        for a, b, logdet in self._whitened(u, sim):
+            A = A + self._sums(a * a)
+            B = B + self._sums(a * b)
+            D = D + self._sums(b * b)
+            C = (
+                C
+                - self._sums(logdet)[:, None, :]
+                - 0.5 * math.log(2.0 * math.pi) * np.diff(np.append(self._starts, len(self._order)))
+            )
+        return C, A, B, D
+
+    def _log_integrals(self, C, A, B, D):
+        """Per walker, shift and jump: log of the likelihood integrated over its interval.
+
+        Also returns the mean and precision of ``eps`` within each interval.
+        """
+        dt = self._dt[None, None, :]
+        h = 0.5 * dt
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mu = B / D
+            sq = np.sqrt(D)
+            moving = D * h * h > 1e-12
+            # the integral over eps in [-h, h] of exp(-(A - 2 eps B + eps^2 D) / 2)
+            gauss = (
+                -0.5 * (A - B * mu)
+                + 0.5 * math.log(2.0 * math.pi)
+                - np.log(sq)
+                + log_diff_ndtr((-h - mu) * sq, (h - mu) * sq)
+            )
+            still = -0.5 * A + np.log(2.0 * h)
+        return np.where(moving, gauss, still) + C, np.where(moving, mu, 0.0), D, moving
+
+    def log_lik(self, u: np.ndarray, law: Law, sim: Simulated | None) -> np.ndarray:
+        """Log-likelihood of every tracked jump, its clock offset integrated out.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, n_coordinates)
+            The block's coordinates.
+        law : Law
+            The force law (unused: the simulation carries it).
+        sim : Simulated
+            Positions and velocities at every frame of the grid.
+
+        Returns
+        -------
+        ndarray, shape (n, n_jumps)
+            ``-inf`` where a simulation failed.
+        """
+        ok = np.all(sim.ok, axis=1)
+        log_int, *_ = self._log_integrals(*self._shift_terms(u, sim))
+        n_shift = log_int.shape[1]
+        with np.errstate(invalid="ignore"):
+            ll = np.logaddexp.reduce(log_int, axis=1) - np.log(n_shift * self._dt)[None, :]
+        ll[~np.isfinite(ll)] = -np.inf
+        ll[~ok] = -np.inf
+        return ll
+
+    #: Most draws whose replicated trajectories a fit keeps (thinned evenly): frames are
+    #: many, and bands and residual cells need a few hundred draws, not thousands.
+    max_predictive_draws = 200
+
+    @property
+    def predictive_dims(self) -> dict[str, str]:  # type: ignore[override]
+        """Replicated and simulated positions, over the frames."""
+        out = {}
+        for c in self.positions:
+            out[c] = "frame"
+            out[c.replace("_mm", "_sim_mm")] = "frame"
+        return out
+
+    def predictive(
+        self, u: np.ndarray, law: Law, sim: Simulated | None, rng: np.random.Generator
+    ) -> dict[str, np.ndarray]:
+        """Replicated positions [mm] of every frame, and the simulated ones.
+
+        Each draw's clock offset of each jump is drawn from its conditional posterior given
+        the measured frames (the shift by the weights of :meth:`log_lik`'s terms, then the
+        offset within it from its truncated normal), the positions are the simulated ones
+        at the offset time (linearised as in the likelihood), and the replicates add one
+        draw of the Ornstein-Uhlenbeck frame noise.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, n_coordinates)
+            The block's coordinates of n draws.
+        law : Law
+            The force law (unused).
+        sim : Simulated
+            Positions and velocities at the frame grid.
+        rng : numpy.random.Generator
+            Source of the offsets and the noise.
+
+        Returns
+        -------
+        dict of str to ndarray, shape (n, n_frames)
+            ``x_foot_mm``/``x_rod_mm`` (replicated) and ``x_foot_sim_mm``/``x_rod_sim_mm``
+            (no noise), for the position columns the data have, in table row order.
+        """
+        n = u.shape[0]
+        log_int, mu, D, moving = self._log_integrals(*self._shift_terms(u, sim))
+        # the shift of each (draw, jump), then the offset within its interval
+        w = np.exp(log_int - np.max(log_int, axis=1, keepdims=True))
+        w = np.nan_to_num(w / np.sum(w, axis=1, keepdims=True), nan=1.0 / w.shape[1])
+        cum = np.cumsum(w, axis=1)
+        pick = np.minimum((rng.random((n, 1, w.shape[2])) > cum).sum(axis=1), w.shape[1] - 1)
+        take = pick[:, None, :]
+        h = 0.5 * self._dt[None, :]
+        mu_k = np.take_along_axis(mu, take, 1)[:, 0]
+        d_k = np.take_along_axis(D, take, 1)[:, 0]
+        mov = np.take_along_axis(moving, take, 1)[:, 0]
+        sd = 1.0 / np.sqrt(np.where(mov, d_k, 1.0))
+        lo, hi = (-h - mu_k) / sd, (h - mu_k) / sd
+        eps_normal = mu_k + sd * truncnorm.rvs(
+            np.where(mov, lo, -1.0), np.where(mov, hi, 1.0), random_state=rng
+        )
+        eps = np.where(mov, eps_normal, rng.uniform(-h, h, size=mu_k.shape))
+        frame_jump = self._unit[self._order]
+        shift = pick[:, frame_jump]  # (n, frames)
+        index = self._grid_index[shift, np.arange(len(frame_jump))[None, :]]
+        eps_f = eps[:, frame_jump]
+        tau_s = 1e-3 * self._per_frame(u, "frame_tau_ms")
+        with np.errstate(over="ignore"):
+            rho = np.exp(-self._gap_s[None, :] / tau_s)
+        s = np.sqrt(1.0 - rho * rho)
+        back = np.empty_like(self._order)
+        back[self._order] = np.arange(len(self._order))
+        out = {}
+        for c in self.positions:
+            col = POSITIONS.index(c)
+            x = sim.frames[np.arange(n)[:, None], index, col]
+            v = sim.frames[np.arange(n)[:, None], index, 2 + col]
+            mean = x + eps_f * v
+            sdf = self._per_frame(u, _SD_OF[c])
+            z = rng.standard_normal(mean.shape)
+            e = np.empty_like(mean)
+            e[:, 0] = sdf[:, 0] * z[:, 0]
+            for i in range(1, mean.shape[1]):  # the Ornstein-Uhlenbeck recursion
+                e[:, i] = rho[:, i] * e[:, i - 1] + sdf[:, i] * s[:, i] * z[:, i]
+            out[c] = (mean + e)[:, back]
+            out[c.replace("_mm", "_sim_mm")] = mean[:, back]
+        return out
