@@ -268,7 +268,9 @@ def test_effects_reach_every_table() -> None:
 
 def test_a_map_callable_gives_the_same_data() -> None:
     """The simulations may run anywhere: a map-like executor changes nothing."""
-    design = LabDesign(phis=(0.612,), commands=("single", "preload"), trials=2)
+    design = LabDesign(
+        phis=(0.612,), commands=("single", "preload"), trials=2, track_after_end_s=0.05
+    )
     calls = []
 
     def counting_map(fn, tasks):
@@ -287,7 +289,9 @@ def test_a_map_callable_gives_the_same_data() -> None:
 def test_a_dask_client_gives_the_same_data() -> None:
     from dask.distributed import Client, LocalCluster
 
-    design = LabDesign(phis=(0.612,), commands=("single", "preload"), trials=2)
+    design = LabDesign(
+        phis=(0.612,), commands=("single", "preload"), trials=2, track_after_end_s=0.05
+    )
     serial = synthetic_lab_data(LAW, seed=2, design=design)
     with (
         LocalCluster(n_workers=2, threads_per_worker=1, processes=True) as cluster,
@@ -316,10 +320,11 @@ def test_the_folder_is_an_experiment(lab, tmp_path) -> None:
     assert (folder / "lab_truth.json").exists()
 
 
-def test_uncertainties_are_written_to_the_toml(tmp_path) -> None:
+def test_uncertainties_are_written_to_the_toml(lab, tmp_path) -> None:
     """[robot.uncertainty] and [bed] phi_sd as data-format.md shows them; the robot
     section keeps the nominal values. (The loader reads the jumps; experiment.toml's
-    uncertainty keys are for the loader to learn: today it refuses them by name.)"""
+    uncertainty keys are for the loader to learn: today it refuses them by name.) Tables
+    of an earlier experiment written to the same folder do not stay behind."""
     design = LabDesign(
         phis=(0.612,),
         commands=("single",),
@@ -330,6 +335,7 @@ def test_uncertainties_are_written_to_the_toml(tmp_path) -> None:
         phi_sd=0.002,
     )
     data = synthetic_lab_data(LAW, seed=4, design=design)
+    write_lab_experiment(tmp_path / "exp", lab)
     folder = write_lab_experiment(tmp_path / "exp", data)
     toml = tomllib.loads((folder / "experiment.toml").read_text())
     assert toml["robot"]["uncertainty"] == {"k_spring": 150.0, "amplitude_mm": 0.5}

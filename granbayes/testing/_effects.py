@@ -31,12 +31,13 @@ grains, physics-model.md section 3) as follows, with ``z`` the depth [m], ``z'``
   The ``stiffening`` term ``k2 z^2`` is kept as it is.
 * :class:`PauseStiffening`: a bed state ``s`` in [0, 1] (0: just disturbed, 1: fully
   relaxed) that relaxes towards 1 with time constant ``tau_s`` and is erased by the foot's
-  motion through the grains over a strain length ``strain_m``,
-  ``ds/dt = (1 - s) / tau_s - s |z'| / strain_m`` while the foot touches the bed
-  (advancing or on the unloading line) and ``ds/dt = (1 - s) / tau_s`` in flight, with
-  ``m_pause = 1 + gain s`` (Hubicki et al. 2017, SICB: pausing an intrusion for ~40 ms
-  before pushing on gave jumps ~40% above prediction; grain motion relaxes over 10-100 ms).
-  It is an extra state variable of the equations of motion.
+  plastic advance through the grains over a strain length ``strain_m``:
+  ``ds/dt = (1 - s) / tau_s - s z' / strain_m`` while the foot advances, ``ds/dt = (1 -
+  s) / tau_s`` otherwise (resting or moving elastically on the unloading line, or in
+  flight: the grains rearrange only where the foot flows through them), with ``m_pause =
+  1 + gain s`` (Hubicki et al. 2017, SICB: pausing an intrusion for ~40 ms before pushing
+  on gave jumps ~40% above prediction; grain motion relaxes over 10-100 ms). It is an
+  extra state variable of the equations of motion, starting at ``initial``.
 * :class:`RateStiffening`: ``m_rate(z') = 1 + gain ln(1 + z' / v_ref)``, a static
   resistance that grows slowly (logarithmically) with the intrusion rate (Hill, Yeung &
   Koehler 2005, *EPL* 72, 137: a weak rate dependence of the depth force at low speed;
@@ -264,11 +265,15 @@ class PauseStiffening:
     """A bed that relaxes and stiffens while the foot rests, and is rejuvenated by motion.
 
     The bed state ``s`` (0: just disturbed, 1: fully relaxed) obeys
-    ``ds/dt = (1 - s) / tau_s - s |z'| / strain_m`` while the foot touches the bed and
-    ``ds/dt = (1 - s) / tau_s`` in flight; the static resistance of the advancing foot is
-    multiplied by ``1 + gain s`` (Hubicki et al. 2017, SICB: a 40 ms pause before the
-    push-off gave jumps ~40% above prediction; grain motion relaxes over 10-100 ms). At a
-    constant intrusion speed ``v`` the state settles at ``1 / (1 + v tau_s / strain_m)``.
+    ``ds/dt = (1 - s) / tau_s - s z' / strain_m`` while the foot advances (flows through
+    undisturbed grains) and ``ds/dt = (1 - s) / tau_s`` otherwise (resting, on the elastic
+    unloading line, in flight); the static resistance of the advancing foot is multiplied
+    by ``1 + gain s`` (Hubicki et al. 2017, SICB: a 40 ms pause before the push-off gave
+    jumps ~40% above prediction; grain motion relaxes over 10-100 ms). At a constant
+    intrusion speed ``v`` the state settles at ``1 / (1 + v tau_s / strain_m)``. Whether a
+    pause raises a jump depends on the command and the bed (a bed stiffened at landing
+    also stops the foot shallower); a robot that pushes off a relaxed bed (the
+    ``preload`` with ``initial = 1``) jumps higher.
 
     Parameters
     ----------
@@ -323,24 +328,24 @@ class PauseStiffening:
         """
         return 1.0 + self.gain * s
 
-    def rate(self, s: float, speed: float, touching: bool) -> float:
-        """``ds/dt`` [1/s] at state ``s`` and foot speed ``speed`` [m/s].
+    def rate(self, s: float, speed: float, advancing: bool) -> float:
+        """``ds/dt`` [1/s] at state ``s`` and intrusion rate ``speed`` [m/s].
 
         Parameters
         ----------
         s : float
             Bed state [-].
         speed : float
-            Foot speed ``|z'|`` [m/s].
-        touching : bool
-            Whether the foot touches the bed (advancing or on the unloading line).
+            Intrusion rate ``z'`` [m/s] (negative values count as 0).
+        advancing : bool
+            Whether the foot advances into undisturbed grains.
 
         Returns
         -------
         float
         """
         relax = (1.0 - s) / self.tau_s
-        return relax - s * speed / self.strain_m if touching else relax
+        return relax - s * max(speed, 0.0) / self.strain_m if advancing else relax
 
     def steady_state(self, speed: float) -> float:
         """The state at a constant intrusion speed ``speed`` [m/s] (>= 0), after long.

@@ -591,12 +591,14 @@ def write_lab_experiment(
     comment naming the data SYNTHETIC with the generator and seed; ``jumps.csv``,
     ``trajectories.csv`` and ``intrusions.csv`` (those with rows) hold the tables without
     their ``true_*`` columns, every row with its ``source``. With ``truth_file`` the truth
-    goes to ``lab_truth.json`` (true robot, beds, effects; never read by inference).
+    goes to ``lab_truth.json`` (true robot, beds with their true phi and law, effects;
+    never read by inference).
 
     Parameters
     ----------
     path : str or Path
-        The folder (created; existing files of the same names are replaced).
+        The folder (created; the files written replace those of the same names, and a
+        measurement file the data have no rows for is removed).
     data : LabData
         The data.
     uncertainties : bool
@@ -636,6 +638,8 @@ def write_lab_experiment(
     ):
         if len(table):
             public(table).to_csv(folder / name, index=False)
+        else:  # no stale table of an earlier run beside the new ones
+            (folder / name).unlink(missing_ok=True)
     if truth_file:
         truth = {
             "source": data.source,
