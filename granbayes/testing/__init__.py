@@ -1,13 +1,28 @@
-"""Test kit: an independent scipy oracle of the model and one seeded synthetic factory.
-
-The oracle is a ``scipy.integrate.solve_ivp`` implementation of the jumping-robot model;
-the factory makes the SYNTHETIC jump tables that the tests use.
+"""Test kit: the independent scipy oracle, its out-of-library physics, and data factories.
 
 This module is public so that tests, benchmarks and other implementations of the model can
 check themselves against one reference (like ``arviz_base.testing``). It is not imported by
-``granbayes`` itself. It holds:
+``granbayes`` itself. The oracle is the source of the data that test the fitting code: the
+compiled kernel never makes its own test data. It holds:
 
-* :func:`simulate_height_scipy`, the oracle (described below);
+* the oracle, a ``scipy.integrate.solve_ivp`` implementation of ``docs/physics-model.md``
+  that shares no numerical code with the compiled integrator (``granbayes._kernel``):
+  :func:`simulate_height_scipy` (the jump height, section 5),
+  :func:`simulate_trajectory_scipy` (foot height and rod displacement at any frame times,
+  from the dense output, with the height of the same simulation: an
+  :class:`OracleTrajectory`) and :func:`intrusion_force_scipy` (the force-depth curve of
+  a constant-speed intrusion, section 5b). Its cost per jump is in the docstring of
+  ``granbayes.testing._oracle`` ("What it costs");
+* out-of-library physics, ground forces the force-term library cannot express, for
+  verdict studies, passed as ``effects=(...)`` to every oracle function
+  (``effects=None`` is the library model, unchanged): :class:`DepthDependentDrag`,
+  :class:`JanssenSaturation`, :class:`PauseStiffening`, :class:`RateStiffening` (force
+  laws, references and the energy argument in ``granbayes.testing._effects``);
+* :func:`synthetic_lab_data`, a SYNTHETIC lab campaign made by the oracle only (jump
+  heights with scatter, filmed jumps with AR(1) frame noise and clock offsets, intrusion
+  tests with force noise, a robot off its nominal values, beds whose true phi scatters,
+  hidden effects), designed by a :class:`LabDesign` and returned as :class:`LabData`;
+  :func:`write_lab_experiment` writes it as an experiment folder;
 * :func:`fake_fit`, a seeded fit's DataTree with every group and attribute of a real one
   (``granbayes.fit``), made without a sampler or a simulator (a linear surrogate of the
   heights), for tests of statistics, figures and reports (like ``arviz_base.testing``);
@@ -18,10 +33,9 @@ check themselves against one reference (like ``arviz_base.testing``). It is not 
   a batch table, and no ``true_height_mm`` column unless asked for. Write a table as an
   experiment folder with :func:`granbayes.synthetic.write_experiment`.
 
-:func:`simulate_height_scipy` follows ``docs/physics-model.md`` directly, with a Python
-right-hand side and solve_ivp's own event machinery, and it is written for clarity rather
-than speed. It shares nothing with the compiled integrator (``granbayes._kernel``) except
-the command waveforms (:func:`granbayes.commands.build_command`), the robot/settings
+The oracle follows ``docs/physics-model.md`` directly, with Python right-hand sides and
+solve_ivp's own event machinery. It shares nothing with the compiled integrator except the
+command waveforms (:func:`granbayes.commands.build_command`), the robot/settings
 containers (:mod:`granbayes.experiment`) and the parameter bounds and "off" values of the
 force-term registry (:mod:`granbayes.forces`); its only numerical dependency is scipy.
 
@@ -36,25 +50,61 @@ Examples
 67.7
 >>> synthetic_jumps({"k": 3000.0}, 2.0, seed=1, commands=("single",)).shape
 (3, 6)
+>>> from granbayes.testing import intrusion_force_scipy, RateStiffening
+>>> law = {"k": 3000.0, "c_d": 20.0}
+>>> intrusion_force_scipy(0.612, law, [10.0], 100.0).round(3).tolist()
+[30.2]
+>>> faster = RateStiffening(0.5)
+>>> intrusion_force_scipy(0.612, law, [10.0], 100.0, effects=(faster,)).round(3).tolist()
+[46.679]
 """
 
 from __future__ import annotations
 
 from ..forces import Parameter
 from ..sampler import SamplerSettings
+from ._effects import (
+    DepthDependentDrag,
+    Effect,
+    JanssenSaturation,
+    PauseStiffening,
+    RateStiffening,
+)
 from ._fake import fake_fit
-from ._oracle import COMPACTION_LENGTH, PARAMETER_DEFAULTS, simulate_height_scipy
+from ._lab import LabData, LabDesign, synthetic_lab_data, write_lab_experiment
+from ._oracle import (
+    COMPACTION_LENGTH,
+    PARAMETER_DEFAULTS,
+    TRACK_AFTER_END,
+    OracleTrajectory,
+    intrusion_force_scipy,
+    simulate_height_scipy,
+    simulate_trajectory_scipy,
+)
 from ._synthetic import synthetic_jumps
 
 __all__ = [
     "COMPACTION_LENGTH",
-    "fake_fit",
+    "DepthDependentDrag",
+    "Effect",
     "ENERGY_BOX_WIDENING",
+    "JanssenSaturation",
+    "LabData",
+    "LabDesign",
+    "OracleTrajectory",
     "PARAMETER_DEFAULTS",
+    "PauseStiffening",
     "QUICK_SAMPLER",
+    "RateStiffening",
+    "TRACK_AFTER_END",
     "energy_test_box",
+    "fake_fit",
+    "intrusion_force_scipy",
     "simulate_height_scipy",
+    "simulate_trajectory_scipy",
     "synthetic_jumps",
+    "synthetic_lab_data",
+    "write_lab_experiment",
 ]
 
 #: <= 1.05, ESS >= 50, at most 600 steps). Not for results anyone quotes.
