@@ -574,6 +574,28 @@ def _add_inference_arguments(
     )
 
 
+def _add_kinds_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--data",
+        dest="kinds",
+        metavar="KINDS",
+        help="kinds of measurement to use, comma-separated (heights, trajectories, "
+        "intrusions; default: every measurement file in the folder)",
+    )
+
+
+def _load_measurements(args: argparse.Namespace, experiment: Experiment):
+    """The measurements ``--data`` asks for (default: every file in the folder)."""
+    from .kinds import load_measurements
+
+    use = None
+    if args.kinds is not None:
+        use = [k.strip() for k in args.kinds.split(",") if k.strip()]
+        if not use:
+            raise UsageError(f"--data {args.kinds!r}: name at least one kind")
+    return load_measurements(args.data, experiment, use)
+
+
 def _check_inference_arguments(args: argparse.Namespace) -> None:
     if args.walkers < 4 or args.walkers % 2:
         raise UsageError(f"--walkers {args.walkers}: must be an even number >= 4")
@@ -621,6 +643,7 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         default="per_phi",
         help="scatter per volume fraction or global (quadratic mode)",
     )
+    _add_kinds_argument(parser)
     parser.add_argument(
         "--compare-commands",
         action="store_true",
@@ -656,20 +679,19 @@ def _fit_config(args: argparse.Namespace):
 
 def run_fit(args: argparse.Namespace) -> int:
     """``granbayes fit``: validate everything, sample, write the report atomically."""
-    from ._measurements import load_jumps
     from .fitting import compare_commands, fit
     from .priors import load_priors
     from .report import load_truth, write_fit_report
 
     config = _fit_config(args)
     experiment = load_experiment(args.data)
-    table = load_jumps(args.data, experiment)
+    data = _load_measurements(args, experiment)
     priors = load_priors(args.priors) if args.priors else None
     truth = load_truth(args.truth) if args.truth else None
     with staged_folder(args.out, args.resume) as work, ProgressBars(args.quiet) as bars:
         result = fit(
             experiment,
-            table,
+            data,
             config,
             seed=args.seed,
             priors=priors,
@@ -678,8 +700,12 @@ def run_fit(args: argparse.Namespace) -> int:
             data_source=str(args.data),
             progress=bars,
         )
+        if args.compare_commands and "heights" not in data.tables:
+            raise UsageError("--compare-commands compares laws on jump heights: none given")
         uniqueness = (
-            compare_commands(experiment, table, result, seed=args.seed, priors=priors).table
+            compare_commands(
+                experiment, data.tables["heights"], result, seed=args.seed, priors=priors
+            ).table
             if args.compare_commands
             else None
         )
@@ -757,6 +783,7 @@ class ProgressBars:
 
 def _add_diagnose_arguments(parser: argparse.ArgumentParser) -> None:
     _add_inference_arguments(parser, max_steps=10_000)
+    _add_kinds_argument(parser)
     parser.add_argument(
         "--baseline", default="depth", help="comma-separated terms of the baseline law"
     )
@@ -775,7 +802,6 @@ def run_diagnose(args: argparse.Namespace) -> int:
     """``granbayes diagnose``: the model-criticism loop, written atomically to OUT."""
     import dataclasses as dc
 
-    from ._measurements import load_jumps
     from .criticism import DiagnoseSettings, diagnose
     from .forces import terms_of
     from .priors import load_priors
@@ -806,14 +832,14 @@ def run_diagnose(args: argparse.Namespace) -> int:
         ),
     )
     experiment = load_experiment(args.data)
-    table = load_jumps(args.data, experiment)
+    data = _load_measurements(args, experiment)
     priors = load_priors(args.priors) if args.priors else None
     log = (lambda *a, **k: None) if args.quiet else (lambda *a, **k: print(*a, **k, flush=True))
     bars = ProgressBars(args.quiet, leave=False)
     with staged_folder(args.out, resume=False) as work, bars:
         result = diagnose(
             experiment,
-            table,
+            data,
             config,
             seed=args.seed,
             priors=priors,

@@ -68,6 +68,7 @@ def build_datatree(
     prior_predictive: Mapping[str, object] | None = None,
     log_prior: Mapping[str, np.ndarray] | None = None,
     var_attrs: Mapping[str, Mapping[str, str]] | None = None,
+    thinned: Mapping[str, xr.Dataset] | None = None,
 ) -> xr.DataTree:
     """Assemble a DataTree from arrays with leading (chain, draw) axes.
 
@@ -106,6 +107,11 @@ def build_datatree(
         Log prior density of every posterior draw, shape ``(chain, draw)``.
     var_attrs : mapping of str to mapping, optional
         Attributes (``units``, ``long_name``) of the variables of that name, in every group.
+    thinned : mapping of str to xarray.Dataset, optional
+        Group name (``"posterior_predictive"``, ``"prior_predictive"``) to variables on
+        thinned draws with their own dimensions and coordinates (e.g.
+        ``("predictive_draw", "frame")``): replicates of measurements with many elements
+        per unit, kept for a few hundred draws rather than every one.
 
     Returns
     -------
@@ -146,6 +152,10 @@ def build_datatree(
             category=UserWarning,
         )
         dt = az.from_dict(groups, coords=all_coords, dims=all_dims)
+    for group, extra_vars in (thinned or {}).items():
+        if extra_vars.data_vars:
+            ds = dt[group].to_dataset() if group in dt.children else xr.Dataset()
+            dt[group] = xr.merge([ds, extra_vars])
     dt["observed_data"] = observed
     # the coordinates of the observations (volume fraction, command, settings, ...) go
     # with every group over the same dimensions

@@ -994,35 +994,119 @@ def _unit_columns(full: Measurements, units: np.ndarray, model: JumpModel) -> li
 
 
 def _predictive_arrays(
-    full: Measurements, shape: tuple[int, ...], names: Sequence[tuple[str, str, str]]
+    full: Measurements,
+    shape: tuple[int, ...],
+    names: Sequence[tuple[str, str, str, bool]],
+    thinned: bool = False,
 ) -> dict[str, tuple[list[str], np.ndarray]]:
-    """NaN arrays (shape + one element axis) of every (variable, kind, dimension)."""
+    """NaN arrays (shape + one element axis) of every (variable, kind, dimension).
+
+    ``thinned``: those of the thinned blocks, on ``(predictive_draw, element)``; otherwise
+    the others, on ``(chain, draw, element)`` (the dims list omits chain and draw).
+    """
+    lead = ["predictive_draw"] if thinned else []
     return {
-        name: ([dim], np.full((*shape, len(full.tables[kind])), np.nan))
-        for name, kind, dim in names
+        name: ([*lead, dim], np.full((*shape, len(full.tables[kind])), np.nan))
+        for name, kind, dim, thin in names
+        if thin == thinned
     }
 
 
-def _predictive_names(parts: list[FitPart]) -> list[tuple[str, str, str]]:
-    """(variable, kind, dimension) of every block's predictive variables, first seen first."""
-    seen: dict[str, tuple[str, str, str]] = {}
+def _predictive_names(parts: list[FitPart]) -> list[tuple[str, str, str, bool]]:
+    """(variable, kind, dimension, thinned) of every block's predictive variables."""
+    seen: dict[str, tuple[str, str, str, bool]] = {}
     for part in parts:
         for block in part.model.blocks:
+            thin = block.max_predictive_draws is not None
             for name, dim in block.predictive_dims.items():
-                seen.setdefault(name, (name, block.kind, dim))
+                seen.setdefault(name, (name, block.kind, dim, thin))
     return list(seen.values())
+
+
+def _thin_index(parts: list[FitPart], n_total: int) -> np.ndarray:
+    """Flat (chain, draw) indices of the draws the thinned blocks replicate (even spacing)."""
+    wanted = [
+        b.max_predictive_draws
+        for p in parts
+        for b in p.model.blocks
+        if b.max_predictive_draws is not None
+    ]
+    if not wanted or n_total == 0:
+        return np.empty(0, dtype=np.int64)
+    m = min(max(wanted), n_total)
+    return np.unique(np.linspace(0, n_total - 1, m).round().astype(np.int64))
+
+
+def _replicate(
+    part: FitPart,
+    u: np.ndarray,
+    seed: int,
+    extras: np.ndarray | None,
+    thin: np.ndarray,
+    full_out: dict,
+    thin_out: dict,
+    lead: tuple[int, ...],
+) -> None:
+    """Replicates of a part's measurements into ``full_out`` and (thinned) ``thin_out``.
+
+    Blocks replicated for every draw use ``default_rng(seed)`` (a heights-only fit's
+    replicates are those of every earlier version, bit for bit); the thinned blocks use
+    ``default_rng([seed, 1])`` on the draws ``thin``.
+    """
+    model = part.model
+    everywhere = [i for i, b in enumerate(model.blocks) if b.max_predictive_draws is None]
+    thinned = [i for i, b in enumerate(model.blocks) if b.max_predictive_draws is not None]
+    rows = _block_rows(part.data, model)
+    if everywhere:
+        reps = model.predictive(u, np.random.default_rng(seed), extras, blocks=everywhere)
+        for i in everywhere:
+            for name, rep in reps[i].items():
+                if name in full_out:
+                    full_out[name][1][..., rows[i]] = rep.reshape(*lead, -1)
+    if thinned and len(thin):
+        reps = model.predictive(
+            u[thin],
+            np.random.default_rng([seed, 1]),
+            None if extras is None else extras[thin],
+            blocks=thinned,
+        )
+        for i in thinned:
+            for name, rep in reps[i].items():
+                if name in thin_out:
+                    thin_out[name][1][:, rows[i]] = rep
+
+
+def _thinned_dataset(
+    variables: Mapping[str, tuple[list[str], np.ndarray]], thin: np.ndarray, n_draw: int
+) -> xr.Dataset:
+    """Thinned replicates with the (chain, draw) of each ``predictive_draw``."""
+    if not variables:
+        return xr.Dataset()
+    return xr.Dataset(
+        {name: (dims, a) for name, (dims, a) in variables.items()},
+        coords={
+            "predictive_draw": np.arange(len(thin)),
+            "predictive_chain": ("predictive_draw", thin // max(n_draw, 1)),
+            "predictive_chain_draw": ("predictive_draw", thin % max(n_draw, 1)),
+        },
+    )
 
 
 def _prior_draws(
     parts: list[FitPart], phis: np.ndarray, full: Measurements, config: FitSettings, seed: int
-) -> tuple[dict, dict]:
-    """Prior draws per volume fraction [SI] and the measurements simulated from them."""
+) -> tuple[dict, dict, dict]:
+    """Prior draws per volume fraction [SI] and the measurements simulated from them.
+
+    Returns the prior, its replicates on (chain, draw) and its thinned replicates.
+    """
     n = config.n_prior_draws
     values_of = [p.model.parameter_values(np.zeros((1, p.model.ndim)), phis) for p in parts]
     names = list(dict.fromkeys(k for v in values_of for k in v))
     prior = {name: np.full((1, n, len(phis)), np.nan) for name in names}
-    replicated = [v for v in _predictive_names(parts) if not v[0].endswith("_sim_mm")]
+    replicated = [v for v in _predictive_names(parts) if "_sim_" not in v[0]]
+    thin = _thin_index(parts, n)
     prior_pred = _predictive_arrays(full, (1, n), replicated)
+    prior_thin = _predictive_arrays(full, (len(thin),), replicated, thinned=True)
     for part, part_seed in zip(parts, _seeds(seed + 2, len(parts)), strict=True):
         rng = np.random.default_rng(part_seed)
         u = part.model.sample_prior(rng, n)
@@ -1031,11 +1115,22 @@ def _prior_draws(
         for name, v in values.items():
             prior[name][0][:, cols] = v[:, cols]
         rows = _block_rows(part.data, part.model)
-        for block_rows, reps in zip(rows, part.model.predictive(u, rng), strict=True):
-            for name, rep in reps.items():
+        model = part.model
+        everywhere = [i for i, b in enumerate(model.blocks) if b.max_predictive_draws is None]
+        thinned = [i for i, b in enumerate(model.blocks) if b.max_predictive_draws is not None]
+        # the replicates continue the stream of the prior draws (as before thinning existed)
+        reps = model.predictive(u, rng, blocks=everywhere) if everywhere else []
+        for i in everywhere:
+            for name, rep in reps[i].items():
                 if name in prior_pred:
-                    prior_pred[name][1][0][:, block_rows] = rep
-    return prior, prior_pred
+                    prior_pred[name][1][0][:, rows[i]] = rep
+        if thinned and len(thin):
+            reps = model.predictive(u[thin], np.random.default_rng([part_seed, 1]), blocks=thinned)
+            for i in thinned:
+                for name, rep in reps[i].items():
+                    if name in prior_thin:
+                        prior_thin[name][1][:, rows[i]] = rep
+    return prior, prior_pred, prior_thin
 
 
 @dataclass(frozen=True)
@@ -1046,6 +1141,8 @@ class _Draws:
     dims: dict[str, list[str]]  # the dimension after (chain, draw) of each posterior variable
     log_likelihood: dict[str, tuple[list[str], np.ndarray]]  # per kind: (chain, draw, unit)
     predictive: dict[str, tuple[list[str], np.ndarray]]  # (chain, draw, row of its kind)
+    thinned: dict[str, tuple[list[str], np.ndarray]]  # (predictive_draw, row of its kind)
+    thin: np.ndarray  # flat (chain, draw) index of each predictive_draw
     lp: np.ndarray  # (chain, draw, run): log-probability of each run's walkers
     log_prior: np.ndarray  # (chain, draw): prior density of the values, summed over runs
 
@@ -1074,7 +1171,10 @@ def _draws(
                     np.full((n_chain, n_draw, full.n_units_of(block.kind)), np.nan),
                 ),
             )
-    predictive = _predictive_arrays(full, (n_chain, n_draw), _predictive_names(parts))
+    names_pp = _predictive_names(parts)
+    predictive = _predictive_arrays(full, (n_chain, n_draw), names_pp)
+    thin = _thin_index(parts, n_chain * n_draw)
+    thinned = _predictive_arrays(full, (len(thin),), names_pp, thinned=True)
     lp = np.full((n_chain, n_draw, len(parts)), np.nan)
     log_prior = np.zeros((n_chain, n_draw))
     for i, (part, rep_seed) in enumerate(zip(parts, _seeds(seed + 1, len(parts)), strict=True)):
@@ -1094,15 +1194,12 @@ def _draws(
             start += block.n_units
         blobs = _to_shape(r.blobs, n_chain, n_draw)
         extras = blobs.reshape(n_chain * n_draw, -1)[:, part.model.n_units :]
-        reps = part.model.predictive(flat, np.random.default_rng(rep_seed), extras)
-        for rows, block_reps in zip(_block_rows(part.data, part.model), reps, strict=True):
-            for name, rep in block_reps.items():
-                predictive[name][1][..., rows] = rep.reshape(n_chain, n_draw, -1)
+        _replicate(part, flat, rep_seed, extras, thin, predictive, thinned, (n_chain, n_draw))
         lp[..., i] = _to_shape(r.log_prob, n_chain, n_draw)
         log_prior += part.model.log_prior_density(flat).reshape(n_chain, n_draw)
         if config.phi_mode == "quadratic":
             _add_coefficients(post, dims, part.model.coordinate_names, samples)
-    return _Draws(post, dims, loglik, predictive, lp, log_prior)
+    return _Draws(post, dims, loglik, predictive, thinned, thin, lp, log_prior)
 
 
 def _add_coefficients(
@@ -1180,13 +1277,24 @@ def _assemble(
         part.data = data.select(part.units)
     phis = data.phis
     draws = _draws(parts, phis, data, config, seed)
-    prior, prior_pred = {}, {}
+    prior, prior_pred, prior_thin = {}, {}, {}
     if config.n_prior_draws > 0:
-        prior, prior_pred = _prior_draws(parts, phis, data, config, seed)
+        prior, prior_pred, prior_thin = _prior_draws(parts, phis, data, config, seed)
+    n_draw = draws.lp.shape[1]
+    thinned = {
+        "posterior_predictive": _thinned_dataset(draws.thinned, draws.thin, n_draw),
+        "prior_predictive": _thinned_dataset(
+            prior_thin, _thin_index(parts, config.n_prior_draws), config.n_prior_draws
+        ),
+    }
     dt = gdt.build_datatree(
         draws.posterior,
         dims=draws.dims,
-        coords={"phi": phis, "order": np.arange(3), "run": [p.label for p in parts]},
+        coords={
+            "phi": phis,
+            "order": np.arange(3),
+            "run": [p.label for p in parts],
+        },
         log_likelihood=draws.log_likelihood,
         posterior_predictive=draws.predictive,
         observed=_observed(data),
@@ -1197,6 +1305,7 @@ def _assemble(
         prior_predictive=prior_pred,
         log_prior={"log_prior": draws.log_prior},
         var_attrs=_variable_attrs(parts[0].model.parameters),
+        thinned=thinned,
     )
     return FitResult(dt, parts, config, seed, _warnings(parts, config))
 

@@ -20,6 +20,7 @@ from matplotlib.figure import Figure
 
 from . import datatree as gdt
 from . import figures, stats
+from .kinds import KINDS
 
 __all__ = [
     "load_truth",
@@ -113,7 +114,8 @@ def write_fit_report(
     written.append(out / "posterior.nc")
     config = json.loads(dt.attrs["config"])
     force_names = list(json.loads(dt.attrs["parameters"]))
-    names = [*force_names, "sigma_mm"]
+    # the observation models' parameters of the kinds the fit holds
+    names = [*force_names, *(n for n in _NOISE_NAMES if n in dt.posterior)]
     fit_warnings = json.loads(dt.attrs.get("warnings", "[]"))
     summary = stats.summary_table(dt, var_names=names).reset_index(names="parameter")
     if truth:
@@ -122,8 +124,11 @@ def write_fit_report(
     diag = stats.run_diagnostics(dt)
     diag.to_csv(out / "diagnostics.csv", index=False)
     loo = stats.loo(dt)
-    pit = stats.loo_pit(dt)
+    kinds = [k for k in KINDS.values() if k.unit_dim in dt["log_likelihood"].dims]
+    heights = "height_mm" in dt["observed_data"]
+    pit = stats.loo_pit(dt) if heights else np.array([np.nan])
     pit_p = stats.pit_uniformity(pit) if np.all(np.isfinite(pit)) else float("nan")
+    units = ", ".join(f"a {k.unit_dim} ({k.name})" for k in kinds)
     phi_c = json.loads(dt.attrs["experiment"])["phi_c"]
     lines = [
         "# granbayes fit",
@@ -134,11 +139,17 @@ def write_fit_report(
         f"{config['phi_mode']}; noise: {config['noise']}",
         f"- seed: {dt.attrs['seed']}; intervals: {stats.CI_PROB:.0%} equal-tailed (ETI)",
         f"- PSIS-LOO: elpd = {loo['elpd']:.1f} ± {loo['se']:.1f}, p_loo = {loo['p']:.1f}, "
-        f"max Pareto k = {loo['max_pareto_k']:.2f} ({loo['n_bad_k']} jumps with k > "
-        f"{loo['good_k']:.2f})",
-        f"- LOO-PIT calibration of the jump heights: uniformity p = {pit_p:.2f} "
-        "(ArviZ `pot_c`; small p: the predictive distribution is mis-calibrated, see "
-        "`loo_pit.png`)",
+        f"max Pareto k = {loo['max_pareto_k']:.2f} ({loo['n_bad_k']} units with k > "
+        f"{loo['good_k']:.2f}; units of leave-one-out: {units})",
+        *(
+            [
+                f"- LOO-PIT calibration of the jump heights: uniformity p = {pit_p:.2f} "
+                "(ArviZ `pot_c`; small p: the predictive distribution is mis-calibrated, "
+                "see `loo_pit.png`)"
+            ]
+            if heights
+            else []
+        ),
         "",
     ]
     if fit_warnings:
@@ -200,8 +211,12 @@ def write_fit_report(
             markdown_table(uniqueness),
             "",
         ]
+    lines += _kind_cell_lines(dt, kinds, out, written)
     label = figures.data_label(dt)
-    figs: dict[str, Figure] = {"predictive.png": figures.plot_predictive(dt)}
+    figs: dict[str, Figure] = {}
+    for kind in kinds:
+        for stem, draw in kind.figures.items():
+            figs[f"{stem}.png"] = draw(dt)
     figs["parameters_vs_phi.png"] = figures.plot_parameters_vs_phi(dt, names, phi_c, truth)
     for phi in dt.posterior["phi"].values:
         t = truth.get(float(phi)) if truth else None
@@ -225,6 +240,34 @@ def write_fit_report(
     summary_md.write_text("\n".join(lines) + "\n")
     written += [out / "summary.csv", out / "diagnostics.csv", summary_md]
     return written
+
+
+#: Observation-model parameters reported with the force law's, when a fit has them.
+_NOISE_NAMES = ("sigma_mm", "frame_sd_foot_mm", "frame_sd_rod_mm", "frame_tau_ms", "force_sd_N")
+
+
+def _kind_cell_lines(dt: xr.DataTree, kinds: list, out: Path, written: list[Path]) -> list[str]:
+    """Residual cells of the kinds beyond heights: a CSV each and the worst in the summary."""
+    lines: list[str] = []
+    for kind in kinds:
+        if kind.name == "heights" or kind.cells is None:
+            continue
+        cells = kind.cells(dt)
+        path = out / f"cells_{kind.name}.csv"
+        cells.to_csv(path, index=False)
+        written.append(path)
+        worst = cells.head(8).assign(kind=kind.name)
+        lines += [
+            f"## Where the law misses: {kind.name}",
+            "",
+            "Observed mean of each cell against the posterior predictive distribution of that "
+            "mean (replicates carry the fitted noise, its correlation and, for tracked jumps, "
+            f"the clock offset); the worst cells by |z| (all in `{path.name}`):",
+            "",
+            *[f"- {stats.describe_cell(r)}" for r in worst.to_dict("records")],
+            "",
+        ]
+    return lines
 
 
 #: How each figure is saved: ``savefig`` keywords by file name (default: 120 dpi, tight).
@@ -301,7 +344,14 @@ def write_diagnosis_report(record: Mapping, selected: xr.DataTree, out: Path) ->
     label = figures.data_label(selected)
     written = [out / "diagnosis.json"]
     (out / "diagnosis.json").write_text(json.dumps(rec, indent=2, default=float) + "\n")
-    before = pd.DataFrame(rec["misfit"])
+    cells = pd.DataFrame(rec["misfit"])
+    kind = cells["kind"].fillna("heights") if "kind" in cells else pd.Series("heights", cells.index)
+    before = cells[kind == "heights"].dropna(axis=1, how="all")
+    if (kind != "heights").any():  # the kinds beyond heights: their cells in one table
+        cells[kind != "heights"].dropna(axis=1, how="all").to_csv(
+            out / "residuals_baseline_kinds.csv", index=False
+        )
+        written.append(out / "residuals_baseline_kinds.csv")
     after = pd.DataFrame(rec["selected"]["per_cell"]).rename(
         columns={"residual_after_mm": "mean_residual_mm", "z_after": "z"}
     )
@@ -321,8 +371,11 @@ def write_diagnosis_report(record: Mapping, selected: xr.DataTree, out: Path) ->
         "residuals_selected.png": figures.plot_residual_heatmap(
             after, f"{prefix}selected {sel_terms}", z
         ),
-        "predictive_selected.png": figures.plot_predictive(selected),
     }
+    for k in KINDS.values():
+        if k.unit_dim in selected["log_likelihood"].dims:
+            for stem, draw in k.figures.items():
+                figs[f"{stem}_selected.png"] = draw(selected)
     written += _save_figures(figs, out)
     gdt.write_datatree(selected, out / "posterior_selected.nc")
     written.append(out / "posterior_selected.nc")

@@ -23,6 +23,7 @@ from ..forces import TERMS, terms_of
 from ..priors import Prior
 from ..sampler import ProgressInfo
 from ._bank import FitBank, Pointwise
+from ._cells import cells_of, kind_thresholds, misfit_mask
 from ._record import (
     BaselineResult,
     CellChange,
@@ -255,12 +256,12 @@ def diagnose(
     base = terms_of(cfg.baseline)
     log(f"Baseline: {' + '.join(base)}")
     baseline = bank.get(base)
-    before = stats.residual_table(baseline.datatree)
-    z_thr = stats.misfit_threshold(before, cfg.family_alpha)
+    before = cells_of(baseline.datatree)
+    z_thr = kind_thresholds(before, cfg.family_alpha)
     current, added, candidates = base, [], []
     misfit = before
     for round_no in range(1, cfg.max_added + 1):
-        n_misfit = int((misfit["z"].abs() > z_thr).sum())
+        n_misfit = int(misfit_mask(misfit, z_thr).sum())
         if not cfg.candidate_terms(current) or (round_no > 1 and n_misfit == 0):
             break
         log(f"Round {round_no}: trying {', '.join(cfg.candidate_terms(current))}")
@@ -290,10 +291,10 @@ def diagnose(
             )
         added.append(chosen.term)
         current = terms_of((*current, chosen.term))
-        misfit = stats.residual_table(bank.fits[current].datatree)
+        misfit = cells_of(bank.fits[current].datatree)
         log(f"  added {chosen.term}")
     selected = bank.fits[current]
-    after = stats.residual_table(selected.datatree)
+    after = cells_of(selected.datatree)
     record = _record(bank, pointwise, base, current, before, after, candidates, added, z_thr)
     return Diagnosis(
         baseline, selected, before, after, candidates, added, record, bank.fits, dict(bank.seconds)
@@ -309,7 +310,7 @@ def _record(
     after: pd.DataFrame,
     candidates: list[Candidate],
     added: list[str],
-    z_thr: float,
+    z_thr: dict[str, float],
 ) -> DiagnosisRecord:
     """The typed record of a finished loop."""
     cfg = bank.config
@@ -322,8 +323,10 @@ def _record(
         gain, gain_se = stats.elpd_difference(e_cur, e_base)
         cell_cur, cell_base = stats.cell_loo(selected.datatree), stats.cell_loo(baseline.datatree)
         cell_gain, cell_gain_se = stats.elpd_difference(cell_cur["elpd_i"], cell_base["elpd_i"])
-    keys = [k for k in stats.CELL_KEYS if k in before.columns]
-    merged = before.merge(after, on=keys, suffixes=("_before", "_after"))
+    heights_before = before[before["kind"] == "heights"].dropna(axis=1, how="all")
+    heights_after = after[after["kind"] == "heights"].dropna(axis=1, how="all")
+    keys = [k for k in stats.CELL_KEYS if k in heights_before.columns]
+    merged = heights_before.merge(heights_after, on=keys, suffixes=("_before", "_after"))
     per_cell = tuple(
         CellChange(
             key={k: (r[k] if k == "command" else float(r[k])) for k in keys},
@@ -343,8 +346,8 @@ def _record(
         for term in added
         for p in TERMS[term].parameters
     }
-    n_before = int((before["z"].abs() > z_thr).sum())
-    residual = CellResult.from_table(after[after["z"].abs() > z_thr], z_thr)
+    n_before = int(misfit_mask(before, z_thr).sum())
+    residual = CellResult.from_table(after[misfit_mask(after, z_thr)], z_thr)
     ties = tuple(
         Tie(r, term, c.term, c.vs_selected, c.vs_selected_se, c.converged)
         for r, term in enumerate(added, start=1)
@@ -379,7 +382,7 @@ def _record(
         ),
         residual_misfit=residual,
         fits=tuple(bank.records.values()),
-        rule=RuleRecord.of(cfg, z_thr, len(before)),
+        rule=RuleRecord.of(cfg, z_thr, before),
         seed=int(bank.seed),
         data_source=bank.data_source,
         environment=environment(),

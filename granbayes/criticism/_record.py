@@ -15,7 +15,13 @@ from typing import Any
 import pandas as pd
 
 from .. import stats
+from ._cells import KIND_CELL_KEYS
 from ._rule import Candidate, DiagnoseSettings, Estimate, Verdict
+
+
+def _missing(value: Any) -> bool:
+    """A key a cell of another kind does not have (NaN after stacking)."""
+    return isinstance(value, float) and value != value
 
 
 def _number(value: Any) -> Any:
@@ -31,61 +37,88 @@ class CellResult:
     ----------
     key : dict
         The cell: ``command`` and its settings (``phi``, ``freq_hz``, ... of
-        :data:`granbayes.stats.CELL_KEYS` the data have).
+        :data:`granbayes.stats.CELL_KEYS` the data have); for the kinds beyond heights
+        also ``position`` and ``phase`` (tracked jumps) or ``speed_mm_s`` and the depth
+        bin (intrusion curves).
     n : int
-        Jumps in the cell.
-    mean_residual_mm : float
-        Observed minus simulated mean height [mm].
+        Measurements in the cell (jumps, frames or force samples).
+    mean_residual : float
+        Observed minus simulated mean, in ``unit`` (``mean_residual_<unit>`` in JSON).
     z, p_value : float
-        Lack-of-fit z and its p-value (:func:`granbayes.stats.residual_table`).
+        Lack-of-fit z and its p-value (:func:`granbayes.stats.residual_table`,
+        :func:`granbayes.stats.predictive_cells`).
     significant : bool
-        Whether |z| exceeds the misfit threshold.
+        Whether |z| exceeds the misfit threshold of its kind.
     description : str
         The cell in words.
+    kind : str
+        Its kind of measurement (:data:`granbayes.kinds.KINDS`).
+    unit : str
+        Unit of ``mean_residual`` (``mm`` or ``N``).
     """
 
     key: dict[str, Any]
     n: int
-    mean_residual_mm: float
+    mean_residual: float
     z: float
     p_value: float
     significant: bool
     description: str
+    kind: str = "heights"
+    unit: str = "mm"
+
+    @property
+    def mean_residual_mm(self) -> float:
+        """The mean residual [mm] (NaN for a cell in another unit)."""
+        return self.mean_residual if self.unit == "mm" else float("nan")
 
     @classmethod
-    def from_table(cls, residuals: pd.DataFrame, z_threshold: float) -> tuple[CellResult, ...]:
-        """The cells of a residual table (:func:`granbayes.stats.residual_table`).
+    def from_table(
+        cls, residuals: pd.DataFrame, z_threshold: float | Mapping[str, float]
+    ) -> tuple[CellResult, ...]:
+        """The cells of a residual table (:func:`granbayes.criticism.cells_of`).
 
         Parameters
         ----------
         residuals : pandas.DataFrame
-            The table, worst first.
-        z_threshold : float
-            The misfit threshold of |z|.
+            The table, worst first (a ``kind`` column: heights if absent).
+        z_threshold : float or mapping of str to float
+            The misfit threshold of |z|, or one per kind.
 
         Returns
         -------
         tuple of CellResult
         """
-        return tuple(
-            cls(
-                key={k: _number(r[k]) for k in stats.CELL_KEYS if k in r},
-                n=int(r["n"]),
-                mean_residual_mm=float(r["mean_residual_mm"]),
-                z=float(r["z"]),
-                p_value=float(r["p_value"]),
-                significant=bool(abs(r["z"]) > z_threshold),
-                description=stats.describe_cell(r),
+        keys = (*stats.CELL_KEYS, *KIND_CELL_KEYS)
+        out = []
+        for r in residuals.to_dict("records"):
+            kind = str(r.get("kind", "heights"))
+            thr = z_threshold if not isinstance(z_threshold, Mapping) else z_threshold[kind]
+            unit = str(r.get("unit", "mm")) if "mean_residual" in r else "mm"
+            value = r["mean_residual"] if "mean_residual" in r else r["mean_residual_mm"]
+            out.append(
+                cls(
+                    key={k: _number(r[k]) for k in keys if k in r and not _missing(r[k])},
+                    n=int(r["n"]),
+                    mean_residual=float(value),
+                    z=float(r["z"]),
+                    p_value=float(r["p_value"]),
+                    significant=bool(abs(r["z"]) > thr),
+                    description=stats.describe_cell(r),
+                    kind=kind,
+                    unit=unit,
+                )
             )
-            for r in residuals.to_dict("records")
-        )
+        return tuple(out)
 
     def to_json(self) -> dict:
         """The JSON form: the key's fields first, then the statistics."""
+        kind = {} if self.kind == "heights" else {"kind": self.kind}
         return {
+            **kind,
             **self.key,
             "n": self.n,
-            "mean_residual_mm": self.mean_residual_mm,
+            f"mean_residual_{self.unit}": self.mean_residual,
             "z": self.z,
             "p_value": self.p_value,
             "significant": self.significant,
@@ -104,8 +137,15 @@ class CellResult:
         -------
         CellResult
         """
-        stat = {f.name for f in fields(cls)} - {"key"}
-        return cls(key={k: v for k, v in doc.items() if k not in stat}, **{k: doc[k] for k in stat})
+        residual = next(k for k in doc if k.startswith("mean_residual_"))
+        stat = {"n", "z", "p_value", "significant", "description"}
+        return cls(
+            key={k: v for k, v in doc.items() if k not in stat | {residual, "kind"}},
+            mean_residual=doc[residual],
+            unit=residual.removeprefix("mean_residual_"),
+            kind=doc.get("kind", "heights"),
+            **{k: doc[k] for k in stat},
+        )
 
 
 @dataclass(frozen=True)
@@ -295,11 +335,14 @@ class RuleRecord:
     min_gain, se_factor, strong_gain, family_alpha : float
         The thresholds (:class:`DiagnoseSettings`).
     z_threshold : float
-        The misfit threshold of |z| on these data.
+        The misfit threshold of |z| of jump-height cells on these data (of the first kind
+        when there are no heights).
     screen : bool
     screen_margin : float
     text : str
         The rule in words.
+    z_thresholds : dict of str to float
+        The threshold of each kind of measurement's cells (``z_threshold_by_kind``).
     """
 
     min_gain: float
@@ -310,26 +353,41 @@ class RuleRecord:
     screen: bool
     screen_margin: float
     text: str
+    z_thresholds: dict[str, float] = field(default_factory=dict)
 
     @classmethod
-    def of(cls, cfg: DiagnoseSettings, z_threshold: float, n_cells: int) -> RuleRecord:
+    def of(
+        cls, cfg: DiagnoseSettings, z_thresholds: Mapping[str, float], cells: pd.DataFrame
+    ) -> RuleRecord:
         """The record of the rule ``cfg`` applied with threshold ``z_threshold``.
 
         Parameters
         ----------
         cfg : DiagnoseSettings
-        z_threshold : float
-        n_cells : int
-            Cells of the data set.
+        z_thresholds : mapping of str to float
+            The threshold of each kind's cells.
+        cells : pandas.DataFrame
+            The cells of the data set (a ``kind`` column).
 
         Returns
         -------
         RuleRecord
         """
+        n_cells = len(cells)
+        z_threshold = float(z_thresholds.get("heights", next(iter(z_thresholds.values()), 0.0)))
+        by_kind = ", ".join(
+            f"{k}: |z| > {v:.2f} over {int((cells['kind'] == k).sum())} cells"
+            for k, v in z_thresholds.items()
+        )
+        threshold_text = (
+            f"|z| > {z_threshold:.2f}"
+            if len(z_thresholds) <= 1
+            else f"{by_kind}; Bonferroni over all kinds"
+        )
         text = (
             f"add the best converged candidate when its ELPD gain > {cfg.min_gain:g} "
             f"nats and > {cfg.se_factor:g} SE, and the current law has a misfit cell "
-            f"(|z| > {z_threshold:.2f}: family-wise false-alarm rate {cfg.family_alpha:g} "
+            f"({threshold_text}: family-wise false-alarm rate {cfg.family_alpha:g} "
             f"over {n_cells} cells) or the gain exceeds {cfg.strong_gain:g} nats; "
             f"at most {cfg.max_added} terms; misfit the selected law leaves gives "
             "'misfit_remains'; a fitted candidate the chosen one does not beat by the "
@@ -351,6 +409,7 @@ class RuleRecord:
             screen=cfg.screen,
             screen_margin=cfg.screen_margin,
             text=text,
+            z_thresholds=dict(z_thresholds),
         )
 
     def to_json(self) -> dict:

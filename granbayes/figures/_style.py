@@ -11,7 +11,13 @@ from ..forces import parameter
 
 #: Label and unit of the noise parameter; those of the force-term parameters are in the
 #: registry (:data:`granbayes.forces.TERMS`).
-_NOISE_LABELS: dict[str, tuple[str, str]] = {"sigma_mm": ("σ [mm]", "mm")}
+_NOISE_LABELS: dict[str, tuple[str, str]] = {
+    "sigma_mm": ("σ [mm]", "mm"),
+    "frame_sd_foot_mm": ("σ_foot [mm]", "mm"),
+    "frame_sd_rod_mm": ("σ_rod [mm]", "mm"),
+    "frame_tau_ms": ("τ_frame [ms]", "ms"),
+    "force_sd_N": ("σ_F [N]", "N"),
+}
 
 
 #: Colours of lines and bands (Okabe-Ito, colour-blind safe).
@@ -62,7 +68,7 @@ def param_unit(name: str) -> str | None:
     Parameters
     ----------
     name : str
-        A force-term parameter or ``sigma_mm``.
+        A force-term parameter or an observation model's (``sigma_mm``, ...).
 
     Returns
     -------
@@ -82,7 +88,7 @@ def param_label(name: str) -> str:
     Parameters
     ----------
     name : str
-        A force-term parameter or ``sigma_mm``.
+        A force-term parameter or an observation model's (``sigma_mm``, ...).
 
     Returns
     -------

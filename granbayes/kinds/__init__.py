@@ -28,7 +28,9 @@ from .._measurements import Measurements
 from ..experiment import Experiment
 from ..likelihood import Block, ObservationSettings
 from ._heights import HEIGHTS
+from ._intrusions import INTRUSIONS
 from ._kind import Kind
+from ._trajectories import TRAJECTORIES
 
 __all__ = [
     "KINDS",
@@ -165,3 +167,5 @@ def blocks_for(data: Measurements, settings: ObservationSettings) -> list[Block]
 
 
 register_kind(HEIGHTS)
+register_kind(TRAJECTORIES)
+register_kind(INTRUSIONS)

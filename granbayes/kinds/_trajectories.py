@@ -56,7 +56,7 @@ def frame_phases(table: pd.DataFrame) -> np.ndarray:
         first = table.iloc[idx[0]]
         settings = CommandSettings(**{s: float(first[s]) for s in SETTINGS})
         program = build_command(str(first["command"]), settings)
-        t_push = float(program.boundaries()[program.pushoff_index])
+        t_push = float(program.boundaries[program.pushoff_index])
         tj = t[idx]
         phase = np.where(tj < t_push, "stance", "push-off").astype(object)
         if foot is None:

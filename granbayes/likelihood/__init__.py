@@ -4,19 +4,24 @@ The public surface: :class:`JumpModel` (the force law and the blocks of every ki
 measurement), :func:`evaluate_models` (many models, one simulator call), the block
 interface (:class:`Block`, :class:`Coordinate`, :class:`JumpRequest`, :class:`Simulated`)
 and the blocks of the library's kinds (:class:`HeightBlock` with its grouped
-:class:`Observations`). Implementation modules: ``_model`` (the law and evaluation),
-``_blocks`` (the interface), ``_heights`` (jump heights).
+:class:`Observations`, :class:`TrajectoryBlock`, :class:`IntrusionBlock`).
+Implementation modules: ``_model`` (the law and evaluation), ``_blocks`` (the interface),
+``_heights`` (jump heights), ``_trajectories`` (tracked jumps), ``_intrusions``
+(intrusion curves).
 """
 
 from ._blocks import Block, Coordinate, JumpRequest, Law, ObservationSettings, Simulated
 from ._heights import HeightBlock, NoiseFamily, Observations, SigmaMode
+from ._intrusions import IntrusionBlock
 from ._model import Evaluation, JumpModel, PhiMode, evaluate_models
+from ._trajectories import TrajectoryBlock
 
 __all__ = [
     "Block",
     "Coordinate",
     "Evaluation",
     "HeightBlock",
+    "IntrusionBlock",
     "JumpModel",
     "JumpRequest",
     "Law",
@@ -26,5 +31,6 @@ __all__ = [
     "PhiMode",
     "SigmaMode",
     "Simulated",
+    "TrajectoryBlock",
     "evaluate_models",
 ]

@@ -63,13 +63,19 @@ class ObservationSettings:
         The heights' scatter per volume fraction or one for all.
     max_offset_frames : float
         The largest offset of a camera's clock from the command's [frames], marginalised
-        with a uniform prior over plus and minus this (tracked jumps).
+        (tracked jumps) with a uniform prior over +/- this many frame intervals (rounded
+        up, plus half a grid step; :mod:`granbayes.likelihood._trajectories`). "A few
+        frames" (physics-model.md section 5b): 5 covers a clock offset of standard
+        deviation 2 frames in 98.8% of jumps.
+    offset_step_ms : float
+        The largest step of the grid the clock offset is linearised about [ms].
     """
 
     noise: str = "normal"
     nu: float = 4.0
     sigma_mode: str = "per_phi"
-    max_offset_frames: float = 3.0
+    max_offset_frames: float = 5.0
+    offset_step_ms: float = 0.25
 
 
 @dataclass(frozen=True)
@@ -156,11 +162,16 @@ class Block:
         Dimension of its units of leave-one-out in a fit's DataTree.
     variable : str
         Name of its pointwise log-likelihood in the DataTree's ``log_likelihood`` group.
+    max_predictive_draws : int or None
+        Most posterior draws whose replicates a fit keeps, thinned evenly over
+        ``(chain, draw)`` onto the dimension ``predictive_draw`` (``None``: every draw,
+        on ``(chain, draw)``): for measurements with many elements per unit (frames).
     """
 
     kind: str = ""
     unit_dim: str = ""
     variable: str = ""
+    max_predictive_draws: int | None = None
 
     @property
     def table(self) -> pd.DataFrame:

@@ -158,9 +158,7 @@ class IntrusionBlock(Block):
             rows = rows.reshape(n * n_var, -1)
         m = len(self._y)
         index = (np.arange(n)[:, None] * n_var + self._variant[None, :]).reshape(-1)
-        force = intrusion_force_rows(
-            rows, np.tile(self._depth, n), np.tile(self._speed, n), index
-        )
+        force = intrusion_force_rows(rows, np.tile(self._depth, n), np.tile(self._speed, n), index)
         return force.reshape(n, m)
 
     def _per_test(self, values: np.ndarray) -> np.ndarray:

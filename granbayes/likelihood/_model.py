@@ -31,7 +31,7 @@ import numpy as np
 from ..experiment import Experiment
 from ..forces import PARAMETERS, TERMS, terms_of
 from ..priors import Prior, default_priors
-from ..simulator import SolverSettings, build_rows, simulate_rows
+from ..simulator import SolverSettings, build_rows, simulate_frames_rows, simulate_rows
 from ._blocks import Block, Coordinate, Law, Simulated
 from ._heights import HeightBlock, NoiseFamily, Observations, SigmaMode
 
@@ -560,7 +560,11 @@ class JumpModel:
         return mean, self.add_noise(mean, sigma, rng)
 
     def predictive(
-        self, u: np.ndarray, rng: np.random.Generator, extras: np.ndarray | None = None
+        self,
+        u: np.ndarray,
+        rng: np.random.Generator,
+        extras: np.ndarray | None = None,
+        blocks: Sequence[int] | None = None,
     ) -> list[dict[str, np.ndarray]]:
         """Predictive replicates of every block's measurements for draws ``u``.
 
@@ -576,6 +580,8 @@ class JumpModel:
             Source of the replicate noise.
         extras : ndarray, shape (n, n_extras), optional
             The draws' kept values (:meth:`evaluate_models`' ``extras``).
+        blocks : sequence of int, optional
+            Only these blocks (the others give an empty dict); default: all.
 
         Returns
         -------
@@ -584,6 +590,7 @@ class JumpModel:
             table).
         """
         u = np.atleast_2d(u)
+        wanted = set(range(len(self.blocks)) if blocks is None else blocks)
         known: list[Simulated | None] = [None] * len(self.blocks)
         if extras is not None:
             start = 0
@@ -593,12 +600,16 @@ class JumpModel:
                     known[i] = block.from_extras(extras[:, start:stop])
                 start = stop
         requests = [
-            None if k is not None else r for k, r in zip(known, self._requests, strict=True)
+            None if k is not None or i not in wanted else r
+            for i, (k, r) in enumerate(zip(known, self._requests, strict=True))
         ]
         sims = _simulate([(self, u, requests)])[0]
         law = _law_of(self, u)
-        out = []
+        out: list[dict[str, np.ndarray]] = []
         for i, block in enumerate(self.blocks):
+            if i not in wanted:
+                out.append({})
+                continue
             sim = known[i] if known[i] is not None else sims[i]
             out.append(block.predictive(self.block_coordinates(u, i), law, sim, rng))
         return out
@@ -684,43 +695,64 @@ def _simulate(jobs: Sequence[tuple[JumpModel, np.ndarray, Sequence]]) -> list[li
     :class:`JumpRequest` (or ``None``) per block. Returns, per job, one :class:`Simulated`
     (or ``None``) per request.
     """
-    rows, index, programs, frames, where = [], [], [], [], []
+    plain: list[tuple] = []  # (job, request, rows, programs) of heights-only requests
+    tracked: list[tuple] = []  # the same for requests with frames
     options = n_threads = None
-    for model, u, requests in jobs:
+    for j, (model, u, requests) in enumerate(jobs):
         options, n_threads = model.options, model.n_threads
-        for req in requests:
-            if req is None or len(u) == 0:
-                continue
-            m = req.n_jumps
-            rows.append(model.rows_for(u, req.phi))
-            index.append(np.tile(np.arange(m), len(u)) + len(programs))
-            programs.extend(req.programs)
-            if req.frame_times_s is not None:
-                frames.append((len(where), req))
-            where.append((len(u), m))
-    out: list[list] = [[None] * len(r) for _, _, r in jobs]
-    if not rows:
-        return out
-    if frames:
-        raise NotImplementedError("trajectories need the frame simulator")
-    res = simulate_rows(
-        np.concatenate(rows),
-        programs,
-        np.concatenate(index),
-        options=options,
-        n_threads=n_threads,
-    )
-    start, k = 0, 0
-    for j, (_, u, requests) in enumerate(jobs):
         for i, req in enumerate(requests):
             if req is None or len(u) == 0:
                 continue
-            n, m = where[k]
-            stop = start + n * m
-            out[j][i] = Simulated(
-                res.height_mm[start:stop].reshape(n, m), res.ok[start:stop].reshape(n, m)
+            entry = (j, i, len(u), req, model.rows_for(u, req.phi))
+            (plain if req.frame_times_s is None else tracked).append(entry)
+    out: list[list] = [[None] * len(r) for _, _, r in jobs]
+    # heights-only jumps and tracked jumps are two batched calls: the frame simulator
+    # gives the same heights bit for bit, but reading frames is not free
+    for entries, with_frames in ((plain, False), (tracked, True)):
+        if not entries:
+            continue
+        rows, index, programs, times, counts = [], [], [], [], []
+        for _, _, n, req, r in entries:
+            rows.append(r)
+            index.append(np.tile(np.arange(req.n_jumps), n) + len(programs))
+            programs.extend(req.programs)
+            if with_frames:
+                times.append(np.tile(np.concatenate(req.frame_times_s), n))
+                counts.append(np.tile([len(t) for t in req.frame_times_s], n))
+        if with_frames:
+            res = simulate_frames_rows(
+                np.concatenate(rows),
+                programs,
+                np.concatenate(index),
+                np.concatenate(times),
+                np.concatenate([[0], np.cumsum(np.concatenate(counts))]),
+                options=options,
+                n_threads=n_threads,
             )
-            start, k = stop, k + 1
+            frames = res.frames_flat
+        else:
+            res = simulate_rows(
+                np.concatenate(rows),
+                programs,
+                np.concatenate(index),
+                options=options,
+                n_threads=n_threads,
+            )
+        start = start_f = 0
+        for j, i, n, req, _ in entries:
+            m = req.n_jumps
+            stop = start + n * m
+            sim_frames = None
+            if with_frames:
+                f = sum(len(t) for t in req.frame_times_s)
+                sim_frames = frames[start_f : start_f + n * f].reshape(n, f, frames.shape[-1])
+                start_f += n * f
+            out[j][i] = Simulated(
+                res.height_mm[start:stop].reshape(n, m),
+                res.ok[start:stop].reshape(n, m),
+                sim_frames,
+            )
+            start = stop
     return out
 
 
@@ -771,7 +803,9 @@ def evaluate_models(
             for i, block in enumerate(model.blocks):
                 ll = block.log_lik(model.block_coordinates(ug, i), law, sim[i])
                 lls.append(ll)
-                kept.append(block.extras(sim[i]))
+                kept.append(
+                    block.extras(sim[i]) if block.n_extras() else np.empty((len(ug), 0))
+                )
             ll = np.concatenate(lls, axis=1)
             loglik[good] = ll
             extras[good] = np.concatenate(kept, axis=1)

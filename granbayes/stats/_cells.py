@@ -183,13 +183,23 @@ def describe_cell(row: Mapping) -> str:
     Parameters
     ----------
     row : mapping
-        A row of :func:`residual_table`.
+        A row of :func:`residual_table` (or of :func:`predictive_cells` with a ``kind``:
+        a tracked jump's phase, an intrusion curve's depth bin).
 
     Returns
     -------
     str
     """
-    verb = "under-predicted" if row["mean_residual_mm"] > 0 else "over-predicted"
+    kind = row.get("kind", "heights")
+    residual = row["mean_residual"] if "mean_residual" in row else row["mean_residual_mm"]
+    verb = "under-predicted" if residual > 0 else "over-predicted"
+    unit = row.get("unit", "mm") if "mean_residual" in row else "mm"
+    if kind == "intrusions":
+        return (
+            f"the intrusion force at phi = {row['phi']:g}, {row['speed_mm_s']:g} mm/s, "
+            f"{row['depth_from_mm']:g}-{row['depth_to_mm']:g} mm deep is {verb} by "
+            f"{abs(residual):.2f} {unit} (z = {row['z']:+.1f})"
+        )
     setting = []
     if row.get("freq_hz"):
         setting.append(f"{row['freq_hz']:g} Hz")
@@ -200,6 +210,13 @@ def describe_cell(row: Mapping) -> str:
         if name in row:
             setting.append(_SETTING_TEXT[name].format(row[name]))
     setting_text = f" ({', '.join(setting)})" if setting else ""
+    if kind == "trajectories":
+        what = "the foot's height" if row.get("position") == "x_foot_mm" else "the rod"
+        return (
+            f"{what} in the {row['phase']} of the {str(row['command']).replace('_', ' ')} at "
+            f"phi = {row['phi']:g}{setting_text} is {verb} by {abs(residual):.2f} {unit} "
+            f"(z = {row['z']:+.1f})"
+        )
     return (
         f"{str(row['command']).replace('_', ' ')} at phi = {row['phi']:g}{setting_text} is "
         f"{verb} by {abs(row['mean_residual_mm']):.1f} mm (z = {row['z']:+.1f})"
@@ -218,6 +235,8 @@ def rmse_mm(dt: xr.DataTree) -> float:
     -------
     float
     """
+    if "height_mm" not in dt["observed_data"]:
+        return float("nan")
     y = dt["observed_data"]["height_mm"].values
     sim = dt["posterior_predictive"]["height_sim_mm"].values.reshape(-1, len(y)).mean(axis=0)
     return float(np.sqrt(np.mean((y - sim) ** 2)))
