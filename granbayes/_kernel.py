@@ -854,6 +854,278 @@ def _lin_safe(t, y, a1, a2, c0, s0, c, lo, hi, top, tau_fix, tau_max):
 
 
 # ----------------------------------------------------------------------------------------
+# dense output at frame times (trajectories as a camera sees them, physics-model.md 5b):
+# positions and velocities of foot and rod. Frames are evaluated inside each accepted
+# step, from what the step already has; the steps themselves are those of the height-only
+# jump (no small fixed step).
+#
+# Closed-form steps: the exact solution, the modal amplitudes a_j exp(lam_j tau) plus the
+# particular motion (and the free centre of mass); the velocities are its exact
+# derivative (each mode's shape times lam_j, as in _lin_advance). Evaluated from scratch
+# that costs a complex exponential per mode and the actuator's cosine and sine per frame;
+# instead the modal terms and the actuator phase of one frame are carried to the next
+# (spacing d) by the factors exp(lam_j d) and a rotation by w d, across the steps of a
+# regime (the modal amplitudes of a regime only ever advance by such factors). Camera
+# frames are equally spaced, so those factors are computed once per regime and spacing
+# (cached): a frame costs a few complex multiplications.
+#
+# Dormand-Prince steps: a quintic Hermite interpolant of each position through its value,
+# velocity and acceleration at both ends of the step; the velocities are its derivative.
+# Chosen over the 4th-order continuous extension of DOPRI5 because (i) it is of higher
+# order: its interpolation error is at most h^6 max|x^(6)| / 46080, below the step's own
+# local error, so the dense output is as accurate as the integrator's states (the
+# velocities and accelerations at the ends are the 5th-order states and the right-hand
+# side there, the FSAL stage); (ii) it uses only the step's end points, so the
+# Dormand-Prince step (shared with event location) need not hand out its stages and the
+# hot loop of height-only jumps is untouched. Velocities: the derivative of the quintic
+# (error O(h^5 max|x^(6)|), through the states' velocities at both ends) rather than a
+# cubic Hermite interpolant of the velocities through their values and the accelerations
+# (error h^4 max|x^(5)| / 384): on a 40 Hz damped oscillation the derivative is 20x (w h =
+# 1) to 370x (w h = 0.13) more accurate and falls as h^5 against h^4. Measured
+# (tests/test_frames.py, tests/test_frames_oracle.py, the report of
+# benchmarks/bench_frames.py): with fixed steps the error of the frames falls as h^5 or
+# faster, like that of the states; with adaptive steps it follows the tolerance (about
+# 1e-6 m at the defaults, 1e-10 m at rtol 1e-9), and the velocities at the frames inside
+# the steps are as accurate as the states' velocities at the steps' ends.
+
+#: Columns of a frame (``out`` of ``simulate_one``): foot height x_f [m], rod displacement
+#: x_r - x_r(0) [m], foot velocity x_f' [m/s], rod velocity x_r' [m/s].
+FRAME_X_FOOT, FRAME_X_ROD, FRAME_V_FOOT, FRAME_V_ROD = 0, 1, 2, 3
+FRAME_SIZE = 4
+
+#: Spacings of successive frames [s] that differ by less than this share their cached
+#: modal factors (equally spaced frames differ by rounding only, ~1e-15 s).
+FRAME_DT_TOL = 1e-14
+
+# frame state (per jump): the spacing of the cached factors, the eigenvalues they belong
+# to, exp(lam_j d), cos and sin of w d; then the carried chain: whether it is valid, the
+# time of its last frame, the modal terms a_j exp(lam_j (t_frame - t_j)) there and the
+# actuator phase's cosine and sine
+_FC_D, _FC_L1, _FC_L2, _FC_E1, _FC_E2, _FC_CW, _FC_SW = 0, 1, 3, 5, 7, 9, 10
+_FC_CHAIN, _FC_T, _FC_Z1, _FC_Z2, _FC_CS, _FC_SN = 11, 12, 13, 15, 17, 18
+_FC_SIZE = 19
+
+
+@njit(cache=True)
+def _frame_factors(d, lam1, lam2, w, fc):
+    """exp(lam_j d), cos(w d), sin(w d) for a frame spacing ``d`` [s], cached in ``fc``."""
+    if not (abs(d - fc[_FC_D]) <= FRAME_DT_TOL and fc[_FC_L1] == lam1.real
+            and fc[_FC_L1 + 1] == lam1.imag and fc[_FC_L2] == lam2.real
+            and fc[_FC_L2 + 1] == lam2.imag):  # fmt: skip
+        e = _exp_lam(lam1, d)
+        fc[_FC_E1], fc[_FC_E1 + 1] = e.real, e.imag
+        e = _exp_lam(lam2, d)
+        fc[_FC_E2], fc[_FC_E2 + 1] = e.real, e.imag
+        fc[_FC_CW], fc[_FC_SW] = math.cos(w * d), math.sin(w * d)
+        fc[_FC_D] = d
+        fc[_FC_L1], fc[_FC_L1 + 1] = lam1.real, lam1.imag
+        fc[_FC_L2], fc[_FC_L2 + 1] = lam2.real, lam2.imag
+    return (complex(fc[_FC_E1], fc[_FC_E1 + 1]), complex(fc[_FC_E2], fc[_FC_E2 + 1]),
+            fc[_FC_CW], fc[_FC_SW], fc[_FC_D])  # fmt: skip
+
+
+@njit(cache=True)
+def _lin_frames(t, y, a1, a2, c0, s0, c, frames, k, t_new, y1, out, xr0, fc):
+    """Positions and velocities at the frames in ``(t, t_new]`` of a closed-form step.
+
+    The state at ``t`` is ``y`` with modal amplitudes ``a1, a2`` and actuator phase ``c0,
+    s0`` (``_lin_modal``); ``y1`` is the state at ``t_new``. Writes ``out[i] = (x_f, x_r -
+    xr0, x_f', x_r')`` ([m], [m/s]; ``FRAME_*`` columns) for the frames from index ``k`` on
+    and returns the index of the first frame after ``t_new``. The velocities are the exact
+    derivative of the closed form: ``2 Re(phi lam q)`` per mode (``q`` the modal
+    coordinate, free and particular parts, as ``_lin_advance``) plus, when free, the
+    centre of mass's velocity. ``fc`` (``_FC_*``) caches the factors of a frame spacing and carries
+    the modal terms from frame to frame; its chain must be invalidated (``fc[_FC_CHAIN] =
+    0``) whenever the modal amplitudes are computed afresh (a new regime or segment).
+    """
+    nf = frames.shape[0]
+    nm = int(c[_C_NMODE])
+    forced = c[_C_SEGCOEF] != 0.0
+    w = c[_C_OMEGA]
+    b = _C_MODAL
+    lam1 = complex(c[b], c[b + 1])
+    pr1 = complex(c[b + 2], c[b + 3])
+    pf1 = complex(c[b + 4], c[b + 5])
+    # the particular motion's constant, cosine and sine parts: positions, then velocities
+    # (the mode shapes times lam: (pr, pf, lam pr, lam pf) is the first-order system's
+    # eigenvector)
+    p0 = complex(c[b + 8], c[b + 9])
+    pc = complex(c[b + 10], c[b + 11])
+    ps = complex(c[b + 12], c[b + 13])
+    vr1 = pr1 * lam1
+    vf1 = pf1 * lam1
+    rod0 = 2.0 * (pr1 * p0).real
+    rodc = 2.0 * (pr1 * pc).real
+    rods = 2.0 * (pr1 * ps).real
+    vrod0 = 2.0 * (vr1 * p0).real
+    vrodc = 2.0 * (vr1 * pc).real
+    vrods = 2.0 * (vr1 * ps).real
+    vfoot0 = 2.0 * (vf1 * p0).real
+    vfootc = 2.0 * (vf1 * pc).real
+    vfoots = 2.0 * (vf1 * ps).real
+    lam2 = pr2 = pf2 = vr2 = vf2 = 0j
+    if nm == 2:
+        b = _C_MODAL + _MODAL_SIZE
+        lam2 = complex(c[b], c[b + 1])
+        pr2 = complex(c[b + 2], c[b + 3])
+        pf2 = complex(c[b + 4], c[b + 5])
+        p0 = complex(c[b + 8], c[b + 9])
+        pc = complex(c[b + 10], c[b + 11])
+        ps = complex(c[b + 12], c[b + 13])
+        vr2 = pr2 * lam2
+        vf2 = pf2 * lam2
+        rod0 += 2.0 * (pr2 * p0).real
+        rodc += 2.0 * (pr2 * pc).real
+        rods += 2.0 * (pr2 * ps).real
+        vrod0 += 2.0 * (vr2 * p0).real
+        vrodc += 2.0 * (vr2 * pc).real
+        vrods += 2.0 * (vr2 * ps).real
+        vfoot0 += 2.0 * (vf2 * p0).real
+        vfootc += 2.0 * (vf2 * pc).real
+        vfoots += 2.0 * (vf2 * ps).real
+    foot0, footc, foots = c[_C_LINXEQ], c[_C_LINFC], c[_C_LINFS]
+    # free: the centre of mass (value, slope at t) and the actuator's push on it
+    x0 = v0 = kap = 0.0
+    if nm == 1:
+        mu, mf = c[_C_M], c[_C_MF]
+        x0 = (mu * y[0] + mf * y[1]) / (mu + mf)
+        v0 = (mu * y[2] + mf * y[3]) / (mu + mf)
+        if forced:
+            kap = c[_C_COMK]
+    e1 = e2 = 0j
+    cw = sw = 0.0
+    d_loc = -1.0  # the spacing of e1, e2, cw, sw
+    if fc[_FC_CHAIN] != 0.0:  # carried from the last frame
+        t_prev = fc[_FC_T]
+        z1 = complex(fc[_FC_Z1], fc[_FC_Z1 + 1])
+        z2 = complex(fc[_FC_Z2], fc[_FC_Z2 + 1])
+        cs, sn = fc[_FC_CS], fc[_FC_SN]
+    else:  # from the step's start
+        t_prev = t
+        z1, z2 = a1, a2
+        cs, sn = c0, s0
+        d = frames[k] - t
+        z1 = z1 * _exp_lam(lam1, d)
+        if nm == 2:
+            z2 = z2 * _exp_lam(lam2, d)
+        if forced:
+            th = w * (frames[k] - c[_C_SEGT0])
+            cs, sn = math.cos(th), math.sin(th)
+        t_prev = frames[k]
+    while k < nf:
+        tf = frames[k]
+        if tf > t_new:
+            break
+        d = tf - t_prev
+        if d != 0.0:
+            if not abs(d - d_loc) <= FRAME_DT_TOL:
+                e1, e2, cw, sw, d_loc = _frame_factors(d, lam1, lam2, w, fc)
+            z1 = z1 * e1
+            if nm == 2:
+                z2 = z2 * e2
+            if forced:
+                cs, sn = cs * cw - sn * sw, sn * cw + cs * sw
+            t_prev = tf
+        if tf == t_new:  # the step's end: the state itself
+            out[k, FRAME_X_FOOT] = y1[1]
+            out[k, FRAME_X_ROD] = y1[0] - xr0
+            out[k, FRAME_V_FOOT] = y1[3]
+            out[k, FRAME_V_ROD] = y1[2]
+            k += 1
+            continue
+        xf = foot0 + 2.0 * (pf1 * z1).real
+        xr = rod0 + 2.0 * (pr1 * z1).real
+        vf = vfoot0 + 2.0 * (vf1 * z1).real
+        vr = vrod0 + 2.0 * (vr1 * z1).real
+        if nm == 2:
+            xf += 2.0 * (pf2 * z2).real
+            xr += 2.0 * (pr2 * z2).real
+            vf += 2.0 * (vf2 * z2).real
+            vr += 2.0 * (vr2 * z2).real
+        if forced:
+            xf += footc * cs + foots * sn
+            xr += rodc * cs + rods * sn
+            vf += vfootc * cs + vfoots * sn
+            vr += vrodc * cs + vrods * sn
+        if nm == 1:
+            tau = tf - t
+            xc = x0 + tau * (v0 - 0.5 * G * tau)
+            vc = v0 - G * tau
+            if forced:
+                xc += kap * (c0 - cs - w * s0 * tau)
+                vc += kap * w * (sn - s0)
+            xf += xc
+            xr += xc
+            vf += vc
+            vr += vc
+        out[k, FRAME_X_FOOT] = xf
+        out[k, FRAME_X_ROD] = xr - xr0
+        out[k, FRAME_V_FOOT] = vf
+        out[k, FRAME_V_ROD] = vr
+        k += 1
+    fc[_FC_CHAIN] = 1.0
+    fc[_FC_T] = t_prev
+    fc[_FC_Z1], fc[_FC_Z1 + 1] = z1.real, z1.imag
+    fc[_FC_Z2], fc[_FC_Z2 + 1] = z2.real, z2.imag
+    fc[_FC_CS], fc[_FC_SN] = cs, sn
+    return k
+
+
+@njit(cache=True)
+def _hermite_frames(t, y, f, y1, f1, h, frames, k, t_new, out, xr0):
+    """Positions and velocities at the frames in ``(t, t_new]`` of a Dormand-Prince step.
+
+    Quintic Hermite interpolant of each position through its value, velocity and
+    acceleration at the step's start (``y``, ``f``) and end (``y1``, ``f1``: the left limit
+    at an event or a segment boundary), as a polynomial in ``s = (t_frame - t) / h``; the
+    velocities are its derivative (a quartic, through the states' velocities at both
+    ends). Writes ``out[i] = (x_f, x_r - xr0, x_f', x_r')`` ([m], [m/s]; ``FRAME_*``
+    columns) and returns the index of the first frame after ``t_new``.
+    """
+    nf = frames.shape[0]
+    hh = 0.5 * h * h
+    # x(s) = p0 + d0 s + q0 s^2 + c3 s^3 + c4 s^4 + c5 s^5 (d: velocity h, q: acceleration
+    # h^2 / 2), from the basis of the quintic Hermite interpolant; x'(t) = x'(s) / h
+    dp = y1[1] - y[1]
+    d0, d1, q0, q1 = h * y[3], h * y1[3], hh * f[1], hh * f1[1]
+    f3 = 10.0 * dp - 6.0 * d0 - 4.0 * d1 - 3.0 * q0 + q1
+    f4 = -15.0 * dp + 8.0 * d0 + 7.0 * d1 + 3.0 * q0 - 2.0 * q1
+    f5 = 6.0 * dp - 3.0 * d0 - 3.0 * d1 - q0 + q1
+    ff = (y[1], d0, q0, f3, f4, f5)
+    dp = y1[0] - y[0]
+    d0, d1, q0, q1 = h * y[2], h * y1[2], hh * f[0], hh * f1[0]
+    r3 = 10.0 * dp - 6.0 * d0 - 4.0 * d1 - 3.0 * q0 + q1
+    r4 = -15.0 * dp + 8.0 * d0 + 7.0 * d1 + 3.0 * q0 - 2.0 * q1
+    r5 = 6.0 * dp - 3.0 * d0 - 3.0 * d1 - q0 + q1
+    rr = (y[0] - xr0, d0, q0, r3, r4, r5)
+    ih = 1.0 / h
+    # the derivative's coefficients, divided by h: [1 / s]
+    fv = (ff[1] * ih, 2.0 * ff[2] * ih, 3.0 * ff[3] * ih, 4.0 * ff[4] * ih, 5.0 * ff[5] * ih)
+    rv = (rr[1] * ih, 2.0 * rr[2] * ih, 3.0 * rr[3] * ih, 4.0 * rr[4] * ih, 5.0 * rr[5] * ih)
+    while k < nf:
+        tf = frames[k]
+        if tf > t_new:
+            break
+        if tf == t_new:
+            out[k, FRAME_X_FOOT] = y1[1]
+            out[k, FRAME_X_ROD] = y1[0] - xr0
+            out[k, FRAME_V_FOOT] = y1[3]
+            out[k, FRAME_V_ROD] = y1[2]
+        else:
+            s = min((tf - t) * ih, 1.0)
+            out[k, FRAME_X_FOOT] = ff[0] + s * (
+                ff[1] + s * (ff[2] + s * (ff[3] + s * (ff[4] + s * ff[5])))
+            )
+            out[k, FRAME_X_ROD] = rr[0] + s * (
+                rr[1] + s * (rr[2] + s * (rr[3] + s * (rr[4] + s * rr[5])))
+            )
+            out[k, FRAME_V_FOOT] = fv[0] + s * (fv[1] + s * (fv[2] + s * (fv[3] + s * fv[4])))
+            out[k, FRAME_V_ROD] = rv[0] + s * (rv[1] + s * (rv[2] + s * (rv[3] + s * rv[4])))
+        k += 1
+    return k
+
+
+# ----------------------------------------------------------------------------------------
 # events
 @njit(cache=True)
 def _g(kind, y, c):
@@ -1195,7 +1467,7 @@ def _switch(event, y, c):
 
 
 @njit(cache=True)
-def simulate_one(row, seg, meta, opts, rec, record):
+def simulate_one(row, seg, meta, opts, rec, record, frames=None, out=None):
     """Simulate one jump.
 
     Parameters
@@ -1210,6 +1482,17 @@ def simulate_one(row, seg, meta, opts, rec, record):
         Trajectory buffer (written only if ``record``).
     record : bool
         Whether to record the trajectory (every accepted step and event).
+    frames : ndarray, shape (n_frames,), optional
+        Frame times [s] on the command's clock, non-decreasing. If given, the positions and
+        velocities at these times are written to ``out`` (dense output of the accepted steps, see
+        ``_lin_frames`` and ``_hermite_frames``); the height is determined as without
+        frames, but while frames remain after the jump's end (the touchdown after a flight,
+        or the window's end) the simulation goes on under the same model (through the hold
+        after the command) to the last frame. Before t = 0 the robot rests in its start
+        state. Omitted (``None``), the frame code is compiled out.
+    out : ndarray, shape (n_frames, FRAME_SIZE), optional
+        Written with ``(x_f, x_r - x_r(0), x_f', x_r')`` ([m], [m/s]; the ``FRAME_*``
+        columns) at each frame (with ``frames``; left as is unless the status is OK).
 
     Returns
     -------
@@ -1250,6 +1533,25 @@ def simulate_one(row, seg, meta, opts, rec, record):
     lin_hmax = hmax if record else np.inf
 
     n_rec = _record(rec, 0, t, y, mode, c) if record else 0
+    # frames: the next frame to evaluate, the end of the simulation, and whether the height
+    # is final (the jump has ended but frames remain)
+    kf = 0
+    nf = 0
+    t_last = t_final
+    done = False
+    xr0 = y[0]
+    if frames is not None:
+        nf = frames.shape[0]
+        fcache = np.full(_FC_SIZE, np.nan)
+        fcache[_FC_CHAIN] = 0.0
+        while kf < nf and frames[kf] <= 0.0:  # at rest in the start state
+            out[kf, FRAME_X_FOOT] = y[1]
+            out[kf, FRAME_X_ROD] = 0.0
+            out[kf, FRAME_V_FOOT] = y[3]
+            out[kf, FRAME_V_ROD] = y[2]
+            kf += 1
+        if nf > 0:
+            t_last = max(t_final, frames[nf - 1])
     in_window = push == 0
     height = y[1] if in_window else -np.inf
     # a flight after the command has ended (x_f >= H_FLIGHT): only then does a touchdown
@@ -1267,6 +1569,9 @@ def simulate_one(row, seg, meta, opts, rec, record):
         if n_steps >= max_steps:
             return np.nan, STATUS_STEP_LIMIT, n_steps, n_rec
         t_stop = seg[si, 0] if si < nseg else t_final
+        if frames is not None:
+            if si > nseg:  # the window has closed: on to the last frame
+                t_stop = t_last
         remaining = t_stop - t
         lin = c[_C_LIN] != 0.0
         safe = False
@@ -1274,12 +1579,19 @@ def simulate_one(row, seg, meta, opts, rec, record):
             if not modal:
                 a1, a2, c0, s0 = _lin_modal(t, y, c)
                 modal = True
-            if mode == MODE_FREE and si >= nseg and flown and not record:
+                if frames is not None:
+                    fcache[_FC_CHAIN] = 0.0  # fresh amplitudes: frames start from them
+            if mode == MODE_FREE and si >= nseg and flown and not record and not done:
                 # the jump ends at touchdown, and until then the foot flies freely, below
                 # the centre of mass's highest point plus the range of its (damped)
                 # oscillation: once that is below the height, the height is final
                 if _free_ceiling(y, a1, c) < height:
-                    return height, STATUS_OK, n_steps, n_rec
+                    if frames is None:
+                        return height, STATUS_OK, n_steps, n_rec
+                    if kf >= nf:
+                        return height, STATUS_OK, n_steps, n_rec
+                    done = True
+                    in_window = False
             h_next = c[_C_LINH]
             tau_max = min(remaining, lin_hmax)
             if tau_max > h_next:
@@ -1288,10 +1600,10 @@ def simulate_one(row, seg, meta, opts, rec, record):
                     lo, hi = -c[_C_ZMAX], -c[_C_ZFREE]
                 else:
                     lo, hi = -c[_C_ZFREE], np.inf
-                if si >= nseg and flown and y[1] >= 0.0:
+                if si >= nseg and flown and y[1] >= 0.0 and not done:
                     lo = max(lo, 0.0)  # touchdown ends the jump
                 top = height if in_window else np.inf
-                if si >= nseg and not flown:
+                if si >= nseg and not flown and not done:
                     # no flight inside a proved step (x_f stays below H_FLIGHT, or rises
                     # throughout): the step's end tells whether the foot has flown
                     top = min(top, H_FLIGHT)
@@ -1366,6 +1678,15 @@ def simulate_one(row, seg, meta, opts, rec, record):
         if si >= nseg and step_top >= H_FLIGHT:
             flown = True
         touchdown = si >= nseg and flown and y1[1] < 0.0
+        if frames is not None:
+            if kf < nf:  # the frames inside the accepted step [t, t + s_end]
+                t_new = t_stop if (landing and event == _EV_NONE) else t + s_end
+                if frames[kf] <= t_new:
+                    if lin:
+                        kf = _lin_frames(t, y, a1, a2, c0, s0, c, frames, kf, t_new, y1, out,
+                                         xr0, fcache)  # fmt: skip
+                    else:
+                        kf = _hermite_frames(t, y, f, y1, f1, s_end, frames, kf, t_new, out, xr0)
         t = t_stop if (landing and event == _EV_NONE) else t + s_end
         y, f = y1, f1
         f_ok = not safe
@@ -1397,7 +1718,13 @@ def simulate_one(row, seg, meta, opts, rec, record):
         if record:
             n_rec = _record(rec, n_rec, t, y, mode, c)
         if touchdown or si > nseg:
-            return height, STATUS_OK, n_steps, n_rec
+            if frames is None:
+                return height, STATUS_OK, n_steps, n_rec
+            done = True  # the height is final; frames may remain
+            in_window = False
+        if frames is not None:
+            if done and kf >= nf:
+                return height, STATUS_OK, n_steps, n_rec
         if not (lin or landing or event != _EV_NONE):
             h = h_try * (5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err**-0.2)))
         h = min(h, hmax)
@@ -1413,3 +1740,103 @@ def simulate_batch(rows, cmd_index, seg_tables, metas, opts, heights, status, n_
         heights[i] = hgt
         status[i] = st
         n_steps[i] = ns
+
+
+@njit(cache=True, parallel=True)
+def simulate_frames_batch(
+    rows, cmd_index, seg_tables, metas, opts, frames, offsets, scale, heights, status, n_steps,
+    out
+):  # fmt: skip
+    """Simulate jumps with positions at their frame times (in parallel over numba threads).
+
+    Jump ``i`` has the frames ``frames[offsets[i]:offsets[i + 1]]`` (non-decreasing, [s])
+    and writes ``out[offsets[i]:offsets[i + 1]]`` = ``scale (x_f, x_r - x_r(0), x_f',
+    x_r')`` (the ``FRAME_*`` columns; ``scale = 1e3``: [mm] and [mm/s]): NaN unless its
+    status is OK. Heights, statuses and step counts as
+    ``simulate_batch`` (the same heights, bit for bit).
+    """
+    empty = np.empty((0, REC_SIZE))
+    for i in prange(rows.shape[0]):
+        j = cmd_index[i]
+        k0 = offsets[i]
+        k1 = offsets[i + 1]
+        o = out[k0:k1]
+        hgt, st, ns, _ = simulate_one(
+            rows[i], seg_tables[j], metas[j], opts, empty, False, frames[k0:k1], o
+        )
+        if st != STATUS_OK:
+            o[:, :] = np.nan
+        elif scale != 1.0:
+            for k in range(o.shape[0]):
+                for col in range(FRAME_SIZE):
+                    o[k, col] *= scale
+        heights[i] = hgt
+        status[i] = st
+        n_steps[i] = ns
+
+
+@njit(cache=True)
+def intrusion_batch(rows, row_index, depth, speed, out):
+    """Force [N] of constant-speed intrusions into a fresh bed (physics-model.md 5b).
+
+    Evaluation ``i`` drives the foot of row ``rows[row_index[i]]`` at speed ``speed[i]``
+    [m/s] (>= 0) through depth ``depth[i]`` [m] (>= 0) and writes the force the rig applies
+    against the bed, less the foot's weight: ``F_g + flux - m_a g`` from the integrator's
+    own ground force ``_ground`` in the advancing regime, with the bed of the touching start
+    state (the undisturbed surface: ``z_entry = 0``, no compaction history; while advancing
+    the crater bottom follows the foot), so that every term of the library counts. The foot
+    moves at constant speed, so its equation of motion (``_accel_a``: ``(m_f + m_a) x_f'' =
+    F_g + flux - F_s - (m_f + m_a) g``) gives the rig's push ``F_s = F_g + flux - (m_f +
+    m_a) g``. NaN for a bad row, a negative or non-finite depth or speed.
+    """
+    n_rows = rows.shape[0]
+    ctx = np.zeros((n_rows, _C_SIZE))
+    ok = np.zeros(n_rows, dtype=np.bool_)
+    meta = np.zeros(4)
+    for r in range(n_rows):
+        if _valid_row(rows[r]):
+            c = _context(rows[r], meta)
+            _initial_state(c, START_TOUCHING)
+            ctx[r] = c
+            ok[r] = True
+    for i in range(depth.shape[0]):
+        r = row_index[i]
+        z = depth[i]
+        v = speed[i]
+        if not (ok[r] and z >= 0.0 and v >= 0.0 and z < np.inf and v < np.inf):
+            out[i] = np.nan
+            continue
+        fg, ma, flux = _ground(z, v, MODE_ADVANCING, ctx[r])
+        out[i] = fg + flux - ma * G
+
+
+@njit(cache=True)
+def check_frames(frames, offsets, limits):
+    """One pass over the frames of a batch: ``(code, index)``.
+
+    Jump ``i`` has the frames ``frames[offsets[i]:offsets[i + 1]]`` [s], which must be
+    finite and at most ``limits[i]``. ``code`` is 0 if they are and each jump's frames are
+    non-decreasing, 1 if they are but some jump's are not, 2 if frame ``index`` is not
+    finite, 3 if frame ``index`` is later than its jump's limit (``index`` is -1 unless
+    ``code`` >= 2).
+    """
+    n_bad = 0
+    n_down = 0
+    for i in range(offsets.shape[0] - 1):  # the common case, without branches
+        limit = limits[i]
+        prev = -np.inf
+        for k in range(offsets[i], offsets[i + 1]):
+            t = frames[k]
+            n_bad += np.int64(not t <= limit) + np.int64(t == -np.inf)
+            n_down += np.int64(t < prev)
+            prev = t
+    if n_bad == 0:
+        return (0 if n_down == 0 else 1), -1
+    for i in range(offsets.shape[0] - 1):
+        for k in range(offsets[i], offsets[i + 1]):
+            t = frames[k]
+            if not abs(t) < np.inf:
+                return 2, k
+            if t > limits[i]:
+                return 3, k
+    return 0, -1
