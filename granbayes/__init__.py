@@ -30,7 +30,13 @@ import importlib.metadata as _metadata
 from typing import TYPE_CHECKING
 
 from ._deprecated import warn_alias as _warn_alias
-from ._measurements import load_batch_table, load_jumps
+from ._measurements import (
+    Measurements,
+    load_batch_table,
+    load_intrusions,
+    load_jumps,
+    load_trajectories,
+)
 from .commands import (
     COMMAND_NAMES,
     COMMANDS,
@@ -63,6 +69,7 @@ from .simulator import (
 if TYPE_CHECKING:
     from .criticism import DiagnoseSettings, Diagnosis, diagnose
     from .fitting import CommandComparison, FitResult, FitSettings, compare_commands, fit
+    from .kinds import load_measurements
     from .prediction import Prediction, predict
     from .priors import Prior, default_priors, load_priors
     from .sampler import SamplerSettings
@@ -90,6 +97,7 @@ _LAZY = {
     "DiagnoseSettings": "criticism",
     "Diagnosis": "criticism",
     "residual_table": "stats",
+    "load_measurements": "kinds",
     "Prior": "priors",
     "default_priors": "priors",
     "load_priors": "priors",
@@ -146,6 +154,7 @@ __all__ = [
     "ForceLaw",
     "Heights",
     "InputError",
+    "Measurements",
     "Prediction",
     "Prior",
     "Robot",
@@ -168,7 +177,10 @@ __all__ = [
     "load_batch_table",
     "load_experiment",
     "load_fit",
+    "load_intrusions",
     "load_jumps",
+    "load_measurements",
+    "load_trajectories",
     "load_priors",
     "predict",
     "residual_table",

@@ -52,7 +52,7 @@ def _flag(bank: FitBank, monkeypatch: pytest.MonkeyPatch, rows: dict) -> None:
     def flagged(keys):
         out = []
         for key in keys:
-            reliable = np.ones(len(bank.table), dtype=bool)
+            reliable = np.ones(len(bank.units), dtype=bool)
             reliable[rows.get(key, [])] = False
             out.append((np.array(bank.loos[key]["elpd_i"], dtype=float), reliable, 0))
         return out
@@ -81,7 +81,7 @@ def test_exact_refits_are_paired_side_by_side_and_agree_with_psis(
     matches its PSIS value within 0.5 nats (the refit's Monte Carlo error and the
     lighter settings).
     """
-    t = bank.table
+    t = bank.units
     first = np.flatnonzero(t["phi"].to_numpy() == PHIS[0])
     _flag(bank, monkeypatch, {DEPTH: [first[0]], DRAG: [first[4]]})
     calls = []
@@ -111,7 +111,7 @@ def test_kfold_of_one_volume_fraction_is_paired(
     same folds, stratified by command), the other volume fraction keeps PSIS; the K
     refits of each law are one batch.
     """
-    t = bank.table
+    t = bank.units
     second = np.flatnonzero(t["phi"].to_numpy() == PHIS[1])
     _flag(bank, monkeypatch, {DEPTH: list(second[:3])})
     calls = []

@@ -132,13 +132,13 @@ def plot_intrusions(dt: xr.DataTree, ci_prob: float = CI_PROB) -> Figure:
     """
     obs = dt.observed_data.to_dataset()
     pp = dt.posterior_predictive.to_dataset()
-    test = obs["sample_test"].values
+    test = obs["reading_test"].values
     phi = obs["test_phi"].values[test]
     speed = obs["test_speed_mm_s"].values[test]
     depth = obs["depth_mm"].values
     force = obs["force_N"].values
-    rep = _draws(pp["force_N"], "sample")
-    sim = _draws(pp["force_sim_N"], "sample")
+    rep = _draws(pp["force_N"], "reading")
+    sim = _draws(pp["force_sim_N"], "reading")
     phis, speeds = np.unique(phi), np.unique(speed)
     q = eti_probs(ci_prob)
     fig = Figure(figsize=(3.3 * len(phis), 3.4), layout="constrained")

@@ -28,13 +28,17 @@ def _block(table: pd.DataFrame, settings: ObservationSettings) -> IntrusionBlock
 
 
 def _to_observed(table: pd.DataFrame) -> xr.Dataset:
-    """Forces over ``sample``; each test's phi, speed and foot radius over ``test``."""
+    """Forces over ``reading``; each test's phi, speed and foot radius over ``test``.
+
+    A reading is one force sample of the rig (ArviZ reserves the name ``sample`` for
+    stacked draws).
+    """
     codes, ids = pd.factorize(table["test"].astype(str), sort=False)
     first = pd.Series(np.arange(len(table))).groupby(codes).first().to_numpy()
     coords = {
-        "sample": np.arange(len(table)),
-        "depth_mm": ("sample", table["depth_mm"].to_numpy(float)),
-        "sample_test": ("sample", np.asarray(codes, dtype=np.int64)),
+        "reading": np.arange(len(table)),
+        "depth_mm": ("reading", table["depth_mm"].to_numpy(float)),
+        "reading_test": ("reading", np.asarray(codes, dtype=np.int64)),
         "test": np.arange(len(ids)),
         "test_id": ("test", np.asarray(ids, dtype=str)),
     }
@@ -42,13 +46,13 @@ def _to_observed(table: pd.DataFrame) -> xr.Dataset:
         coords[f"test_{c}"] = ("test", table[c].to_numpy(float)[first])
     if "source" in table and table["source"].notna().all():
         coords["test_source"] = ("test", table["source"].astype(str).to_numpy()[first])
-    return xr.Dataset({"force_N": ("sample", table["force_N"].to_numpy(float))}, coords=coords)
+    return xr.Dataset({"force_N": ("reading", table["force_N"].to_numpy(float))}, coords=coords)
 
 
 def _from_observed(obs: xr.Dataset) -> pd.DataFrame | None:
-    if "sample_test" not in obs.coords:
+    if "reading_test" not in obs.coords:
         return None
-    unit = obs["sample_test"].values
+    unit = obs["reading_test"].values
     table = pd.DataFrame({"test": obs["test_id"].values[unit]})
     for c in _UNIT_COLUMNS:
         table[c] = obs[f"test_{c}"].values[unit].astype(float)

@@ -47,7 +47,7 @@ class IntrusionBlock(Block):
     kind = "intrusions"
     unit_dim = "test"
     variable = "intrusion"
-    predictive_dims: ClassVar[Mapping[str, str]] = {"force_N": "sample", "force_sim_N": "sample"}
+    predictive_dims: ClassVar[Mapping[str, str]] = {"force_N": "reading", "force_sim_N": "reading"}
 
     def __init__(self, table: pd.DataFrame, *, sd_mode: str = "per_phi") -> None:
         self._table = table.reset_index(drop=True)

@@ -803,9 +803,7 @@ def evaluate_models(
             for i, block in enumerate(model.blocks):
                 ll = block.log_lik(model.block_coordinates(ug, i), law, sim[i])
                 lls.append(ll)
-                kept.append(
-                    block.extras(sim[i]) if block.n_extras() else np.empty((len(ug), 0))
-                )
+                kept.append(block.extras(sim[i]) if block.n_extras() else np.empty((len(ug), 0)))
             ll = np.concatenate(lls, axis=1)
             loglik[good] = ll
             extras[good] = np.concatenate(kept, axis=1)

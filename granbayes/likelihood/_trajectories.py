@@ -36,6 +36,7 @@ The unit of leave-one-out is a whole tracked jump: its frames are not exchangeab
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
 
@@ -107,7 +108,7 @@ class TrajectoryBlock(Block):
 
     kind = "trajectories"
     unit_dim = "trajectory"
-    variable = "trajectory"
+    variable = "tracked_jump"  # not the dimension's name: xarray would take it for it
 
     def __init__(self, table: pd.DataFrame, settings: ObservationSettings | None = None) -> None:
         settings = settings or ObservationSettings()
@@ -138,7 +139,7 @@ class TrajectoryBlock(Block):
         dts = np.array(
             [
                 float(np.median(np.diff(times[a:b]))) if b - a > 1 else 1e-3
-                for a, b in zip(bounds[:-1], bounds[1:], strict=True)
+                for a, b in itertools.pairwise(bounds)
             ]
         )
         # sub-steps per frame interval: the offset grid is at most offset_step_ms apart

@@ -145,7 +145,7 @@ def intrusion_cells(dt: xr.DataTree, depth_bin_mm: float = DEPTH_BIN_MM) -> pd.D
     """
     obs = dt["observed_data"].to_dataset()
     pp = dt["posterior_predictive"].to_dataset()
-    test = obs["sample_test"].values
+    test = obs["reading_test"].values
     depth = obs["depth_mm"].values
     lower = np.floor(depth / depth_bin_mm) * depth_bin_mm
     keys = pd.DataFrame(
@@ -156,8 +156,8 @@ def intrusion_cells(dt: xr.DataTree, depth_bin_mm: float = DEPTH_BIN_MM) -> pd.D
             "depth_to_mm": lower + depth_bin_mm,
         }
     )
-    rep = _draws(pp["force_N"], "sample")
-    sim = _draws(pp["force_sim_N"], "sample")
+    rep = _draws(pp["force_N"], "reading")
+    sim = _draws(pp["force_sim_N"], "reading")
     out = predictive_cells(keys, obs["force_N"].values, rep, sim, "N")
     out.insert(0, "kind", "intrusions")
     return out

@@ -36,7 +36,10 @@ def run_diagnostics(dt: xr.DataTree) -> pd.DataFrame:
         tau = np.asarray(run["tau"], dtype=float)
         burn = np.asarray(run["burn"], dtype=float)
         tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else np.nan
-        per_ens = np.nanmax(tau, axis=1) if tau.ndim == 2 else np.array([tau_max])
+        per_ens = (
+            np.array([_finite_max(row) for row in tau]) if tau.ndim == 2 else np.array([tau_max])
+        )
+        steps = (run["n_steps"] - burn) / per_ens
         rows.append(
             {
                 "run": run["label"],
@@ -44,15 +47,23 @@ def run_diagnostics(dt: xr.DataTree) -> pd.DataFrame:
                 "n_chains": run["n_chains"],
                 "n_steps": run["n_steps"],
                 "tau_max": tau_max,
-                "steps_over_tau": float(np.nanmin((run["n_steps"] - burn) / per_ens)),
-                "rhat_max": float(np.nanmax(run["rhat"])) if run["rhat"] else np.nan,
-                "ess_min": float(np.nanmin([*run["ess_bulk"], *run["ess_tail"]])),
+                # NaN where no ensemble has a tau estimate yet (a short, capped run)
+                "steps_over_tau": -_finite_max(-steps),
+                "rhat_max": _finite_max(run["rhat"]) if run["rhat"] else np.nan,
+                "ess_min": -_finite_max(-np.asarray([*run["ess_bulk"], *run["ess_tail"]], float)),
                 "acceptance": run["acceptance"],
                 "converged": run["converged"],
                 "warnings": "; ".join(run["warnings"]),
             }
         )
     return pd.DataFrame(rows)
+
+
+def _finite_max(values: np.ndarray) -> float:
+    """The largest finite value (NaN if there is none), without a warning."""
+    values = np.asarray(values, dtype=float)
+    finite = values[np.isfinite(values)]
+    return float(finite.max()) if finite.size else float("nan")
 
 
 def summary_table(
