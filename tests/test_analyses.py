@@ -135,6 +135,7 @@ def test_hard_ground(tmp_path: Path, small_data: Path) -> None:
         assert res["best"][command]["height_mm"] >= heights[f"{command}_height_mm"].max() - 1e-9
 
 
+@pytest.mark.slow  # two fits per volume fraction (~30 s): with the slow suite
 def test_one_force_law(tmp_path: Path, small_data: Path) -> None:
     """Depth + drag cannot serve every command at the loosest packing (the reference data
     hide compaction there: per-command parameters preferred by more than 2 SE)."""
@@ -187,6 +188,7 @@ def test_optimal_jumping(tmp_path: Path, small_data: Path) -> None:
     assert (grid["amplitude_mm"] <= res["max_amplitude_mm"] + 1e-9).all()
 
 
+@pytest.mark.slow  # a full fit with added mass (~50 s): with the slow suite
 def test_added_mass_impulse(tmp_path: Path, small_data: Path) -> None:
     """Impulses are non-negative and converge with the step (< 2% on doubling it; the
     flux quadrature agrees within 2%); correlations are proper with ordered intervals; the

@@ -23,20 +23,20 @@ from granbayes.testing import LabDesign, synthetic_lab_data, write_lab_experimen
 
 TRUTH = {"k": 3000.0, "c_d": 20.0}
 
-#: A small SYNTHETIC lab: 2 volume fractions, 2 commands, 3 trials, one filmed per cell,
+#: A small SYNTHETIC lab: 2 volume fractions, 1 command, 3 trials, one filmed per cell,
 #: intrusions at 2 speeds (generator granbayes.testing.synthetic_lab_data, seed 11).
 SMALL = LabDesign(
     phis=(0.602, 0.622),
-    commands=("single", "preload"),
+    commands=("single",),
     trials=3,
     sigma_mm=1.0,
     tracked_trials=1,
-    fps=500.0,
+    fps=1000.0,
     frame_sd_mm=0.2,
     frame_rho=0.5,
     clock_sd_frames=1.5,
-    track_from_s=-0.01,
-    track_after_end_s=0.08,
+    track_from_s=-0.005,
+    track_after_end_s=0.03,
     intrusion_speeds_mm_s=(1.0, 200.0),
     intrusion_repeats=1,
     depth_step_mm=1.0,
@@ -235,7 +235,7 @@ def test_joint_fit_cli_keeps_every_kind_on_its_own_dims(
     dt = read_datatree(out / "posterior.nc")
     ll = dt["log_likelihood"].to_dataset()
     assert set(ll.data_vars) == {"height_mm", "tracked_jump", "intrusion"}
-    assert ll["tracked_jump"].dims[-1] == "trajectory" and ll.sizes["trajectory"] == 4
+    assert ll["tracked_jump"].dims[-1] == "trajectory" and ll.sizes["trajectory"] == 2
     assert ll["intrusion"].dims[-1] == "test" and ll.sizes["test"] == 4
     obs = dt["observed_data"].to_dataset()
     for name in ("height_mm", "x_foot_mm", "x_rod_mm", "force_N"):
