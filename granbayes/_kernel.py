@@ -39,6 +39,10 @@ code (``STATUS_*``), and its height is NaN unless the status is ``STATUS_OK``.
 Input layout: one float row per jump (``ROW_*`` indices: robot, phi, then the force-term
 parameters in ``forces.PARAMETER_NAMES`` order); a command table per command (see
 ``commands.CommandProgram.as_table``); an options vector (``OPT_*``).
+
+Length: about 1,840 lines of compiled code that must live in one module for numba to
+inline across it: the integrator, its events, the closed-form regimes, dense output for
+frames and the intrusion force.
 """
 
 from __future__ import annotations

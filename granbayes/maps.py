@@ -48,6 +48,9 @@ Examples
 >>> grid = GridSpec(40, 21, 8, 300.0, 30000.0, 100.0)
 >>> m = misfit_map(exp, jumps, 0.592, grid, 200, np.random.default_rng(0))  # doctest: +SKIP
 >>> m.observed.intersect, m.boot["intersect"].mean()  # doctest: +SKIP
+
+Length: about 780 lines for one job (a map, its valleys and their intersection, computed
+in one simulator call); most of it is the valley geometry and its documentation.
 """
 
 from __future__ import annotations

@@ -17,6 +17,11 @@ Examples
 >>> res = simulate("single", 0.612, {"k": 3000.0, "r_unload": 1.0})
 >>> round(float(res.height_mm[0]), 1)
 67.7
+
+Length: about 1,130 lines, the public face of the kernel for every kind of simulation
+(heights, tables, trajectories, frames, intrusion forces): each function checks its
+inputs and converts units around one kernel call, and the docstrings carry the semantics
+of physics-model.md.
 """
 
 from __future__ import annotations

@@ -3,6 +3,9 @@
 Measured heights, misfit maps, optimal jumping, added-mass impulse and coefficients per
 command, with one colour and marker per command (:data:`COMMAND_COLORS`,
 :data:`COMMAND_MARKERS`) shared by every analysis figure.
+
+Length: about 900 lines, one function per figure of the analyses, each short; they share
+the command colours and markers defined here, which is why they are in one module.
 """
 
 from __future__ import annotations

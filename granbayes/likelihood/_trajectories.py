@@ -40,6 +40,7 @@ import itertools
 import math
 from collections.abc import Mapping
 
+import numba
 import numpy as np
 import pandas as pd
 from scipy.special import log_ndtr
@@ -91,6 +92,41 @@ def log_diff_ndtr(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         out = lhi + np.log1p(-np.exp(llo - lhi))
     return np.where(hi > lo, out, -np.inf)
+
+
+@numba.njit(parallel=True, cache=True)
+def _quadratic_sums(x, v, grid_index, y, rho, scale, starts, out):  # pragma: no cover
+    """Add the per-jump sums of ``a a``, ``a b``, ``b b`` into ``out`` (3, n, shifts, jumps).
+
+    ``x``, ``v`` (n, grid): simulated position [mm] and velocity [mm/s] at the grid
+    points; ``grid_index`` (shifts, frames): grid point of each frame at each shift; ``y``
+    (frames,): the measurements, jump by jump; ``rho``, ``scale`` (n, frames): the
+    Ornstein-Uhlenbeck correlation with the previous frame (0 at a jump's first) and
+    ``sd sqrt(1 - rho^2)``; ``starts`` (jumps,): each jump's first frame.
+    """
+    n = x.shape[0]
+    n_shift, n_frame = grid_index.shape
+    n_jump = starts.shape[0]
+    for w in numba.prange(n):
+        for k in range(n_shift):
+            for j in range(n_jump):
+                lo = starts[j]
+                hi = starts[j + 1] if j + 1 < n_jump else n_frame
+                saa = sab = sbb = 0.0
+                prev_r = prev_v = 0.0
+                for i in range(lo, hi):
+                    g = grid_index[k, i]
+                    r = y[i] - x[w, g]
+                    vel = v[w, g]
+                    a = (r - rho[w, i] * prev_r) / scale[w, i]
+                    b = (vel - rho[w, i] * prev_v) / scale[w, i]
+                    saa += a * a
+                    sab += a * b
+                    sbb += b * b
+                    prev_r, prev_v = r, vel
+                out[0, w, k, j] += saa
+                out[1, w, k, j] += sab
+                out[2, w, k, j] += sbb
 
 
 class TrajectoryBlock(Block):
@@ -271,54 +307,39 @@ class TrajectoryBlock(Block):
         return at[:, phi_index][:, self._unit[self._order]]
 
     # ------------------------------------------------------------------------------------
-    def _whitened(self, u: np.ndarray, sim: Simulated):
-        """Whitened residuals ``a`` and velocities ``b`` per shift, and the log-determinant.
+    def _shift_terms(self, u: np.ndarray, sim: Simulated):
+        """Per walker, shift and jump: the quadratic form in ``eps = delta - k step``.
 
-        Returns ``a, b`` of shape (n, shifts, n_frames) summed later over both coordinates
-        (a list per coordinate) and ``logdet`` (n, n_frames) per coordinate.
+        ``ll(eps) = C - (A - 2 eps B + eps^2 D) / 2`` with ``A``, ``B``, ``D`` the sums
+        over a jump's frames (and both coordinates) of the whitened residuals ``a`` and
+        velocities ``b``: ``a a``, ``a b``, ``b b`` (:func:`_quadratic_sums`, compiled: the
+        (walker, shift, frame) arrays are never stored). Returns ``C`` of shape
+        (n, 1, jumps) and ``A, B, D`` of shape (n, shifts, jumps).
         """
         tau_s = 1e-3 * self._per_frame(u, "frame_tau_ms")
         with np.errstate(over="ignore"):
             rho = np.exp(-self._gap_s[None, :] / tau_s)  # 0 at a jump's first frame
         s = np.sqrt(1.0 - rho * rho)
-        out = []
+        n, n_shift, n_jump = u.shape[0], self._grid_index.shape[0], self._n_units
+        sums = np.zeros((3, n, n_shift, n_jump))
+        frames_per_jump = np.diff(np.append(self._starts, len(self._order)))
+        C = np.zeros((n, 1, n_jump))
         for c in self.positions:
             col = POSITIONS.index(c)
-            sd = self._per_frame(u, _SD_OF[c])
-            x = sim.frames[:, self._grid_index, col]  # (n, shifts, frames) [mm]
-            v = sim.frames[:, self._grid_index, 2 + col]  # [mm/s]
-            r = self._y[c][None, None, :] - x
-            prev_r = np.concatenate([r[..., :1] * 0.0, r[..., :-1]], axis=-1)
-            prev_v = np.concatenate([v[..., :1] * 0.0, v[..., :-1]], axis=-1)
-            scale = (sd * s)[:, None, :]
-            a = (r - rho[:, None, :] * prev_r) / scale
-            b = (v - rho[:, None, :] * prev_v) / scale
-            logdet = np.log(sd * s)
-            out.append((a, b, logdet))
-        return out
-
-    def _sums(self, values: np.ndarray) -> np.ndarray:
-        """Per-jump sums over the last (frame) axis."""
-        return np.add.reduceat(values, self._starts, axis=-1)
-
-    def _shift_terms(self, u: np.ndarray, sim: Simulated):
-        """Per walker, shift and jump: the quadratic form in ``eps = delta - k dt``.
-
-        ``ll(eps) = C - (A - 2 eps B + eps^2 D) / 2``; returns ``C, A, B, D`` of shape
-        (n, shifts, jumps).
-        """
-        A = B = D = 0.0
-        C = 0.0
-        for a, b, logdet in self._whitened(u, sim):
-            A = A + self._sums(a * a)
-            B = B + self._sums(a * b)
-            D = D + self._sums(b * b)
-            C = (
-                C
-                - self._sums(logdet)[:, None, :]
-                - 0.5 * math.log(2.0 * math.pi) * np.diff(np.append(self._starts, len(self._order)))
+            scale = self._per_frame(u, _SD_OF[c]) * s  # (n, frames)
+            _quadratic_sums(
+                np.ascontiguousarray(sim.frames[:, :, col]),
+                np.ascontiguousarray(sim.frames[:, :, 2 + col]),
+                self._grid_index,
+                self._y[c],
+                np.ascontiguousarray(rho),
+                np.ascontiguousarray(scale),
+                self._starts.astype(np.int64),
+                sums,
             )
-        return C, A, B, D
+            logdet = np.add.reduceat(np.log(scale), self._starts, axis=-1)
+            C = C - logdet[:, None, :] - 0.5 * math.log(2.0 * math.pi) * frames_per_jump
+        return C, sums[0], sums[1], sums[2]
 
     def _log_integrals(self, C, A, B, D):
         """Per walker, shift and jump: log of the likelihood integrated over its interval.
