@@ -96,12 +96,32 @@ class Experiment:
         Critical packing fraction of the bed [-].
     source : str, optional
         Where the experiment was loaded from (for messages and provenance).
+    calibration_sd : tuple of (str, float)
+        ``[robot.uncertainty]``: one standard deviation of the lab's calibration per robot
+        or command parameter, in the units of its key (a parameter without one is known
+        exactly); as pairs, so that the experiment stays hashable (:attr:`uncertainty`
+        gives the mapping).
+    phi_sd : float
+        ``[bed] phi_sd``: standard deviation of a prepared bed's true volume fraction about
+        its measured one [-] (0: exact).
     """
 
     robot: Robot = field(default_factory=Robot)
     command: CommandSettings = field(default_factory=CommandSettings)
     phi_c: float = 0.612
     source: str | None = None
+    calibration_sd: tuple[tuple[str, float], ...] = ()
+    phi_sd: float = 0.0
+
+    @property
+    def uncertainty(self) -> dict[str, float]:
+        """``[robot.uncertainty]`` as a mapping: key to standard deviation."""
+        return dict(self.calibration_sd)
+
+    @property
+    def uncertain(self) -> bool:
+        """Whether the experiment states calibration or packing uncertainties."""
+        return bool(self.uncertainty) or self.phi_sd > 0.0
 
     def replace(self, **changes: float) -> Experiment:
         """Return a copy with robot or command fields replaced by keyword.
@@ -117,7 +137,7 @@ class Experiment:
         """
         robot_keys = {f.name for f in dataclasses.fields(Robot)}
         command_keys = {f.name for f in dataclasses.fields(CommandSettings)}
-        unknown = set(changes) - robot_keys - command_keys - {"phi_c"}
+        unknown = set(changes) - robot_keys - command_keys - {"phi_c", "phi_sd"}
         if unknown:
             raise KeyError(f"unknown experiment key(s): {sorted(unknown)}")
         robot = dataclasses.replace(
@@ -127,7 +147,14 @@ class Experiment:
             self.command, **{k: v for k, v in changes.items() if k in command_keys}
         )
         phi_c = changes.get("phi_c", self.phi_c)
-        return Experiment(robot=robot, command=command, phi_c=phi_c, source=self.source)
+        return Experiment(
+            robot=robot,
+            command=command,
+            phi_c=phi_c,
+            source=self.source,
+            calibration_sd=self.calibration_sd,
+            phi_sd=changes.get("phi_sd", self.phi_sd),
+        )
 
 
 # --------------------------------------------------------------------------------------
@@ -158,7 +185,7 @@ _COMMAND_RANGES: dict[str, _Range] = {
 _TOML_SECTIONS: dict[str, dict[str, _Range]] = {
     "robot": _ROBOT_RANGES,
     "command": _COMMAND_RANGES,
-    "bed": {"phi_c": _FRACTION},
+    "bed": {"phi_c": _FRACTION, "phi_sd": _NON_NEGATIVE},
 }
 
 
@@ -291,7 +318,9 @@ def _toml_entry(section: str, key: str | None, raw: object) -> tuple[float, str 
     return value, _range_problem(value, allowed[key], repr(raw))
 
 
-def _toml_values(data: Mapping[str, object], text: str, file: Path) -> dict[str, float]:
+def _toml_values(
+    data: Mapping[str, object], text: str, file: Path
+) -> tuple[dict[str, float], dict[str, float]]:
     """Validate a parsed ``experiment.toml`` and flatten it to ``Experiment.replace`` keys.
 
     Parameters
@@ -305,8 +334,10 @@ def _toml_values(data: Mapping[str, object], text: str, file: Path) -> dict[str,
 
     Returns
     -------
-    dict of str to float
+    values : dict of str to float
         Key (without section) to value, in the document's units.
+    uncertainty : dict of str to float
+        ``[robot.uncertainty]``: key to standard deviation.
 
     Raises
     ------
@@ -315,11 +346,15 @@ def _toml_values(data: Mapping[str, object], text: str, file: Path) -> dict[str,
         is ``section.key`` (or the section) and ``row`` its line if it can be found.
     """
     values: dict[str, float] = {}
+    uncertainty: dict[str, float] = {}
     for section, table in data.items():
         entries: list[tuple[str | None, object]] = [(None, table)]
         if isinstance(table, dict):
             entries += list(table.items())
         for key, raw in entries:
+            if section == "robot" and key == "uncertainty":
+                uncertainty.update(_uncertainty(raw, text, file))
+                continue
             value, problem = _toml_entry(section, key, raw)
             if problem is not None:
                 raise InputError(
@@ -330,7 +365,40 @@ def _toml_values(data: Mapping[str, object], text: str, file: Path) -> dict[str,
                 )
             if key is not None:
                 values[key] = value
-    return values
+    return values, uncertainty
+
+
+def _uncertainty(raw: object, text: str, file: Path) -> dict[str, float]:
+    """Validate ``[robot.uncertainty]``: robot or command keys, sds finite and >= 0."""
+    allowed = {**_ROBOT_RANGES, **_COMMAND_RANGES}
+    if not isinstance(raw, dict):
+        raise InputError(
+            f"expected a table [robot.uncertainty], got {_toml_type_name(raw)}",
+            file=file,
+            row=_toml_line(text, "robot", "uncertainty"),
+            column="robot.uncertainty",
+        )
+    out = {}
+    for key, value in raw.items():
+        problem = None
+        if key not in allowed:
+            problem = (
+                f"unknown key '{key}' in [robot.uncertainty]{_suggest(key, allowed)}; allowed "
+                f"keys: {', '.join(allowed)}"
+            )
+        elif isinstance(value, bool) or not isinstance(value, int | float):
+            problem = f"expected a number, got {_toml_type_name(value)} ({value!r})"
+        elif not (math.isfinite(float(value)) and float(value) >= 0.0):
+            problem = f"a standard deviation must be finite and >= 0, got {value!r}"
+        if problem is not None:
+            raise InputError(
+                problem,
+                file=file,
+                row=_toml_line(text, "robot.uncertainty", key),
+                column=f"robot.uncertainty.{key}",
+            )
+        out[key] = float(value)
+    return out
 
 
 def load_experiment(path: str | Path) -> Experiment:
@@ -344,7 +412,8 @@ def load_experiment(path: str | Path) -> Experiment:
         ``[robot]`` ``m_motor``, ``m_rod``, ``m_foot`` [kg], ``k_spring`` [N/m],
         ``c_spring`` [N s/m], ``foot_radius`` [m], ``grain_density`` [kg/m^3];
         ``[command]`` ``amplitude_mm`` [mm], ``freq_hz`` [Hz], ``delay_ms`` [ms],
-        ``settle_periods`` [periods]; ``[bed]`` ``phi_c`` [-].
+        ``settle_periods`` [periods]; ``[bed]`` ``phi_c`` [-] and ``phi_sd`` [-];
+        ``[robot.uncertainty]`` a standard deviation per robot or command key.
 
     Returns
     -------
@@ -378,8 +447,11 @@ def load_experiment(path: str | Path) -> Experiment:
             found = re.search(r"line (\d+)", str(err))
             line = int(found.group(1)) if found else None
         raise InputError(f"malformed TOML: {err}", file=file, row=line) from err
-    values = _toml_values(data, text, file)
-    return Experiment(source=str(path)).replace(**values)
+    values, uncertainty = _toml_values(data, text, file)
+    return dataclasses.replace(
+        Experiment(source=str(path)).replace(**values),
+        calibration_sd=tuple(uncertainty.items()),
+    )
 
 
 # --------------------------------------------------------------------------------------

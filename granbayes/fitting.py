@@ -974,8 +974,17 @@ def _run_record(part: FitPart) -> dict:
     }
 
 
-def _warnings(parts: list[FitPart], config: FitSettings) -> list[str]:
+def _warnings(
+    parts: list[FitPart], config: FitSettings, experiment: Experiment | None = None
+) -> list[str]:
     out = []
+    if experiment is not None and experiment.uncertain:
+        # read and validated (docs/data-format.md), not yet parameters of the fit
+        out.append(
+            "experiment.toml states calibration uncertainties ([robot.uncertainty] or "
+            "[bed] phi_sd); this fit takes the robot and each bed's phi as exact (nominal "
+            "values): its intervals do not include those uncertainties"
+        )
     for p in parts:
         out.extend(f"run {p.label}: {w}" for w in p.run.warnings)
         if not p.run.converged and not p.run.warnings:
@@ -1253,7 +1262,7 @@ def _fit_attrs(
         "parameters": list(parts[0].model.parameters),
         "runs": [_run_record(p) for p in parts],
         "converged": all(p.run.converged for p in parts),
-        "warnings": _warnings(parts, config),
+        "warnings": _warnings(parts, config, experiment),
         "interval": f"{stats.CI_PROB:.0%} equal-tailed",
         "log_prior": "density of the reported parameter values, summed over runs",
     }
@@ -1312,7 +1321,7 @@ def _assemble(
         var_attrs=_variable_attrs(parts[0].model.parameters),
         thinned=thinned,
     )
-    return FitResult(dt, parts, config, seed, _warnings(parts, config))
+    return FitResult(dt, parts, config, seed, _warnings(parts, config, experiment))
 
 
 # ----------------------------------------------------------------------------------------

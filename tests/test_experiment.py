@@ -976,3 +976,35 @@ def test_number_cells_parse_as_float_does(pandas_cells: int) -> None:
                 assert is_refused == (bool(text) and number is None), text
                 expected = math.nan if number is None else number
                 assert repr(float(value)) == repr(expected), text
+
+
+@pytest.mark.parametrize(
+    ("toml", "column", "fragment"),
+    [
+        ("[robot.uncertainty]\nk_spring = -1.0\n", "robot.uncertainty.k_spring", "finite and >= 0"),
+        ("[robot.uncertainty]\nk_sprung = 1.0\n", "robot.uncertainty.k_sprung", "unknown key"),
+        ("[robot.uncertainty]\nm_motor = 'a'\n", "robot.uncertainty.m_motor", "expected a number"),
+        ("[bed]\nphi_sd = -0.001\n", "bed.phi_sd", ""),
+    ],
+)
+def test_bad_uncertainties_name_the_key(tmp_path, toml: str, column: str, fragment: str) -> None:
+    """[robot.uncertainty] and [bed] phi_sd (data-format.md) are read and validated."""
+    path = tmp_path / "experiment.toml"
+    path.write_text(toml)
+    with pytest.raises(InputError) as err:
+        load_experiment(path)
+    assert column in str(err.value) and fragment in str(err.value)
+
+
+def test_uncertainties_are_read(tmp_path) -> None:
+    path = tmp_path / "experiment.toml"
+    path.write_text(
+        "[robot]\nk_spring = 5000.0\n[robot.uncertainty]\nk_spring = 150.0\n"
+        "m_motor = 0.01\namplitude_mm = 0.5\n[bed]\nphi_c = 0.612\nphi_sd = 0.002\n"
+    )
+    exp = load_experiment(path)
+    assert exp.robot.k_spring == 5000.0
+    assert exp.uncertainty == {"k_spring": 150.0, "m_motor": 0.01, "amplitude_mm": 0.5}
+    assert exp.phi_sd == 0.002 and exp.uncertain
+    (tmp_path / "plain").mkdir()
+    assert not load_experiment(tmp_path / "plain").uncertain

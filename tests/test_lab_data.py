@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from granbayes import InputError, load_experiment, load_jumps
+from granbayes import load_experiment, load_jumps
 from granbayes.experiment import Experiment
 from granbayes.testing import (
     LabDesign,
@@ -322,8 +322,7 @@ def test_the_folder_is_an_experiment(lab, tmp_path) -> None:
 
 def test_uncertainties_are_written_to_the_toml(lab, tmp_path) -> None:
     """[robot.uncertainty] and [bed] phi_sd as data-format.md shows them; the robot
-    section keeps the nominal values. (The loader reads the jumps; experiment.toml's
-    uncertainty keys are for the loader to learn: today it refuses them by name.) Tables
+    section keeps the nominal values, and the loader reads the uncertainties back. Tables
     of an earlier experiment written to the same folder do not stay behind."""
     design = LabDesign(
         phis=(0.612,),
@@ -343,10 +342,10 @@ def test_uncertainties_are_written_to_the_toml(lab, tmp_path) -> None:
     assert toml["bed"] == {"phi_c": 0.612, "phi_sd": 0.002}
     assert len(load_jumps(folder)) == 2
     assert not (folder / "trajectories.csv").exists() and not (folder / "intrusions.csv").exists()
-    try:
-        assert load_experiment(folder).robot == Experiment().robot
-    except InputError as err:  # a loader that does not know the keys yet names them
-        assert "uncertainty" in str(err) or "phi_sd" in str(err)
+    exp = load_experiment(folder)  # read and kept; the robot keeps its nominal values
+    assert exp.robot == Experiment().robot
+    assert exp.uncertainty == {"k_spring": 150.0, "amplitude_mm": 0.5}
+    assert exp.phi_sd == 0.002 and exp.uncertain
     plain = write_lab_experiment(tmp_path / "plain", data, uncertainties=False, truth_file=False)
     assert load_experiment(plain).robot == Experiment().robot
     assert not (plain / "lab_truth.json").exists()
