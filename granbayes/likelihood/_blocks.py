@@ -13,6 +13,7 @@ owns the force law and knows blocks only through this interface; the registry of
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -321,3 +322,32 @@ class Block:
             NaN at volume fractions the block has no value for.
         """
         return {}
+
+
+def coordinate_values(
+    coords: list[Coordinate], u: np.ndarray, phis: np.ndarray
+) -> dict[str, np.ndarray]:
+    """The parameters of per-phi (or global) noise coordinates at volume fractions ``phis``.
+
+    Parameters
+    ----------
+    coords : list of Coordinate
+        A block's coordinates, each of one parameter at one ``phi`` (or at all: ``None``).
+    u : ndarray, shape (n, len(coords))
+        Their values in sampling coordinates.
+    phis : ndarray
+        Volume fractions.
+
+    Returns
+    -------
+    dict of str to ndarray, shape (n, len(phis))
+        Per parameter its value [its unit]; NaN at volume fractions it has none for.
+    """
+    out: dict[str, np.ndarray] = {}
+    for j, c in enumerate(coords):
+        arr = out.setdefault(c.parameter, np.full((u.shape[0], len(phis)), np.nan))
+        value = c.prior.to_value(u[:, j])
+        for i, phi in enumerate(phis):
+            if c.phi is None or math.isclose(c.phi, phi, abs_tol=1e-12):
+                arr[:, i] = value
+    return out

@@ -20,7 +20,7 @@ import pandas as pd
 
 from ..priors import Prior
 from ..simulator import ROW_FIELDS, intrusion_force_rows
-from ._blocks import Block, Coordinate, Law, Simulated
+from ._blocks import Block, Coordinate, Law, Simulated, coordinate_values
 
 __all__ = ["IntrusionBlock"]
 
@@ -229,10 +229,4 @@ class IntrusionBlock(Block):
         -------
         dict of str to ndarray, shape (n, len(phis))
         """
-        sd = np.full((u.shape[0], len(phis)), np.nan)
-        for j, c in enumerate(self._coords):
-            value = c.prior.to_value(u[:, j])
-            for i, phi in enumerate(phis):
-                if c.phi is None or math.isclose(c.phi, phi, abs_tol=1e-12):
-                    sd[:, i] = value
-        return {"force_sd_N": sd}
+        return coordinate_values(self._coords, u, phis)

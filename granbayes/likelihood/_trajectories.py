@@ -48,7 +48,15 @@ from scipy.stats import truncnorm
 
 from ..commands import SETTINGS, CommandProgram, CommandSettings, build_command
 from ..priors import Prior
-from ._blocks import Block, Coordinate, JumpRequest, Law, ObservationSettings, Simulated
+from ._blocks import (
+    Block,
+    Coordinate,
+    JumpRequest,
+    Law,
+    ObservationSettings,
+    Simulated,
+    coordinate_values,
+)
 
 __all__ = ["TrajectoryBlock"]
 
@@ -289,14 +297,7 @@ class TrajectoryBlock(Block):
         -------
         dict of str to ndarray, shape (n, len(phis))
         """
-        out: dict[str, np.ndarray] = {}
-        for j, c in enumerate(self._coords):
-            arr = out.setdefault(c.parameter, np.full((u.shape[0], len(phis)), np.nan))
-            value = c.prior.to_value(u[:, j])
-            for i, phi in enumerate(phis):
-                if c.phi is None or math.isclose(c.phi, phi, abs_tol=1e-12):
-                    arr[:, i] = value
-        return out
+        return coordinate_values(self._coords, u, phis)
 
     def _per_frame(self, u: np.ndarray, name: str) -> np.ndarray:
         """A noise parameter at every frame (jump order): (n, n_frames)."""
