@@ -109,6 +109,7 @@ def test_heights_vs_phi(tmp_path: Path, small_data: Path) -> None:
     assert res["best_at_loosest"] in ("delayed_stutter", "delayed_stutter_preload")
 
 
+@pytest.mark.slow  # fits per volume fraction (~18 s): with the slow suite
 def test_preload_transfer(tmp_path: Path, small_data: Path) -> None:
     """The preload fit reproduces the preload heights within noise (|z| < 3) and misses the
     delayed stutter preload at phi = 0.592 by more than 5 mm. In the reference truth both
@@ -167,6 +168,7 @@ def test_misfit_maps(tmp_path: Path, small_data: Path) -> None:
     assert len(grid) > 0 and np.isfinite(grid.select_dtypes("number").to_numpy()).any()
 
 
+@pytest.mark.slow  # a fit and a settings grid (~17 s): with the slow suite
 def test_optimal_jumping(tmp_path: Path, small_data: Path) -> None:
     """On the loose bed the optimum is a delayed command and beats the best single jump
     (the published finding; in the reference truth by about 60 mm, far beyond fast-mode

@@ -259,6 +259,7 @@ def test_joint_fit_cli_keeps_every_kind_on_its_own_dims(
         assert data.kinds == ("heights", "trajectories", "intrusions")
 
 
+@pytest.mark.slow  # a second joint fit (~19 s): with the slow suite
 def test_fit_data_option_selects_kinds(
     lab_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -250,6 +250,7 @@ def test_killed_campaign_resumes_without_recomputing(tmp_path: Path, design: Pat
 # ----------------------------------------------------------------------------------------
 # (d) refusals and (e) seeds
 # ----------------------------------------------------------------------------------------
+@pytest.mark.slow  # two SBC campaigns (~34 s): with the slow suite
 def test_same_seed_same_ranks_with_one_or_two_workers_and_foreign_resume_refused(
     tmp_path: Path, design: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
