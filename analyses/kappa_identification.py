@@ -24,6 +24,7 @@ docs/analyses/kappa_identification``).
 
 from __future__ import annotations
 
+import hashlib
 import sys
 import time
 from pathlib import Path
@@ -31,6 +32,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from scipy.stats import binom
 
 import _common as common
 from granbayes.fitting import FitSettings, fit
@@ -106,12 +109,14 @@ def run_case(ctx: common.Context, label: str, kinds: tuple[str, ...], truth: dic
                 "kappa_median": k_med,
                 "kappa_lo": k_lo,
                 "kappa_hi": k_hi,
+                "kappa_sd": float(np.std(kappa)),
                 "kappa_width_over_prior_range": (k_hi - k_lo) / KAPPA_PRIOR_RANGE,
                 "kappa_contraction": contraction.get("kappa", np.nan),
                 "c_d_true": true.get("c_d", np.nan),
                 "c_d_median": c_med,
                 "c_d_lo": c_lo,
                 "c_d_hi": c_hi,
+                "c_d_sd": float(np.std(c_d)),
                 "c_d_contraction": contraction.get("c_d", np.nan),
                 "k_true": true.get("k", np.nan),
                 "k_median": float(np.median(_draws(dt, "k", phi))),
@@ -142,29 +147,38 @@ def run_case(ctx: common.Context, label: str, kinds: tuple[str, ...], truth: dic
 
 
 def _figure(ctx: common.Context, cases: list[dict], truth: dict) -> Figure:
-    """Joint posterior of (c_d, kappa): one column per volume fraction, one colour per case."""
+    """Joint posterior of (c_d, kappa): a column per volume fraction, a colour per case;
+    the top row over kappa's prior range, the bottom row zoomed on the truth."""
     phis = sorted(cases[0]["joint"])
-    fig = Figure(figsize=(4.0 * len(phis), 3.8), layout="constrained")
-    axes = fig.subplots(1, len(phis), squeeze=False)[0]
+    fig = Figure(figsize=(4.0 * len(phis), 7.0), layout="constrained")
+    axes = fig.subplots(2, len(phis), squeeze=False)
     colours = ("tab:grey", "tab:blue", "tab:red")
     rng = ctx.rng(1)
-    for ax, phi in zip(axes, phis, strict=True):
+    for j, phi in enumerate(phis):
+        true = truth.get(round(phi, 6), {})
         for case, colour in zip(cases, colours, strict=False):
             kappa, c_d = case["joint"][phi]
             pick = rng.choice(kappa.size, size=min(kappa.size, 1500), replace=False)
-            ax.scatter(c_d[pick], kappa[pick], s=3, alpha=0.3, color=colour, label=case["label"])
-        true = truth.get(round(phi, 6), {})
-        if "kappa" in true and "c_d" in true:
-            ax.plot(true["c_d"], true["kappa"], "k*", ms=12, label="truth")
-        ax.set_xlabel("c_d [kg/m]")
-        ax.set_ylabel("kappa [-]")
-        ax.set_ylim(_KAPPA_PRIOR.lower, _KAPPA_PRIOR.upper)
-        ax.set_title(f"phi = {phi:g}")
-    handles, labels = axes[0].get_legend_handles_labels()
-    for h in handles:
-        if hasattr(h, "set_alpha"):
-            h.set_alpha(1.0)
-    fig.legend(handles, labels, loc="outside lower center", ncols=4, markerscale=4)
+            for ax in axes[:, j]:
+                ax.scatter(c_d[pick], kappa[pick], s=3, alpha=0.3, color=colour, lw=0)
+        for row, ax in enumerate(axes[:, j]):
+            if "kappa" in true and "c_d" in true:
+                ax.plot(true["c_d"], true["kappa"], ls="", marker="*", ms=12, mfc="none", mec="k")
+            ax.set_xlabel("c_d [kg/m]")
+            ax.set_ylabel("kappa [-]")
+            if row == 0:
+                ax.set_ylim(_KAPPA_PRIOR.lower, _KAPPA_PRIOR.upper)
+                ax.set_title(f"phi = {phi:g}")
+            elif "kappa" in true and "c_d" in true:
+                ax.set_xlim(true["c_d"] - 1.5, true["c_d"] + 1.5)
+                ax.set_ylim(true["kappa"] - 0.3, true["kappa"] + 0.3)
+                ax.set_title(f"phi = {phi:g}, near the truth")
+    handles = [
+        Line2D([], [], ls="", marker="o", color=colour, label=case["label"])
+        for case, colour in zip(cases, colours, strict=False)
+    ]
+    handles.append(Line2D([], [], ls="", marker="*", mfc="none", mec="k", ms=12, label="truth"))
+    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles))
     fig.suptitle(ctx.title("Joint posterior of kappa and c_d, per kind of data"))
     return fig
 
@@ -179,7 +193,7 @@ def _summary_table(table: pd.DataFrame) -> pd.DataFrame:
             "data": table["case"],
             "φ": table["phi"].map(lambda p: f"{p:g}"),
             "κ (true)": [
-                f"{_fmt(r.kappa_median, r.kappa_lo, r.kappa_hi)} ({r.kappa_true:g})"
+                f"{_fmt(r.kappa_median, r.kappa_lo, r.kappa_hi, '.3f')} ({r.kappa_true:g})"
                 for r in table.itertuples()
             ],
             "κ width / prior range": table["kappa_width_over_prior_range"].map(
@@ -199,56 +213,61 @@ def _summary_table(table: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def _conclusion(table: pd.DataFrame, cases: list[dict]) -> str:
-    """The answer in words, from the numbers."""
-    lines = []
-    for case in cases:
-        sub = table[table["case"] == case["label"]]
-        widths = ", ".join(f"{w:.2f}" for w in sub["kappa_width_over_prior_range"].to_numpy(float))
-        contr = ", ".join(f"{c:.2f}" for c in sub["kappa_contraction"].to_numpy(float))
-        corr = ", ".join(f"{c:+.2f}" for c in sub["corr_kappa_c_d"].to_numpy(float))
-        covered = int(sub["kappa_in_interval"].sum())
-        conv = "all runs converged" if case["converged"] else "**not every run converged**"
-        lines.append(
-            f"- **{case['label']}** ({case['seconds'] / 60:.1f} min, {conv}): kappa's 90% "
-            f"interval spans {widths} of its prior range (phi = "
-            f"{', '.join(f'{p:g}' for p in sub['phi'])}), contraction {contr}; "
-            f"corr(kappa, c_d) {corr}; the truth lies in {covered} of {len(sub)} intervals."
-        )
-    return "\n".join(lines)
+def _level(contraction: float) -> str:
+    """The identifiability verdict of a contraction (granbayes.stats levels), in short."""
+    return next(t for bound, t in IDENTIFIABILITY_LEVELS if contraction < bound).split(":")[0]
 
 
-def _level(contractions: np.ndarray) -> str:
-    """The identifiability verdict of the worst volume fraction (stats levels)."""
-    worst = float(np.nanmin(contractions))
-    return next(t for bound, t in IDENTIFIABILITY_LEVELS if worst < bound).split(":")[0]
+def _range(values: np.ndarray, fmt: str) -> str:
+    lo, hi = float(np.nanmin(values)), float(np.nanmax(values))
+    return f"{lo:{fmt}}" if f"{lo:{fmt}}" == f"{hi:{fmt}}" else f"{lo:{fmt}} to {hi:{fmt}}"
 
 
 def _verdict(table: pd.DataFrame, cases: list[dict]) -> str:
-    """One paragraph: is kappa identified by each kind of data (worst volume fraction)?"""
-    parts = []
+    """The conclusion: is kappa identified by each kind of data? (worst volume fraction)."""
+    sentences = []
     for case in cases:
         sub = table[table["case"] == case["label"]]
         width = sub["kappa_width_over_prior_range"].to_numpy(float)
         contr = sub["kappa_contraction"].to_numpy(float)
         corr = sub["corr_kappa_c_d"].to_numpy(float)
-        parts.append(
-            f"with {case['label']} kappa is **{_level(contr)}** (contraction "
-            f"{np.nanmin(contr):.2f}-{np.nanmax(contr):.2f}, 90% interval "
-            f"{np.nanmin(width):.0%}-{np.nanmax(width):.0%} of the prior range, "
-            f"corr(kappa, c_d) {np.nanmin(corr):+.2f} to {np.nanmax(corr):+.2f}"
-            + ("" if case["converged"] else "; **not every run converged**")
-            + ")"
+        c_width = (sub["c_d_hi"] - sub["c_d_lo"]).to_numpy(float)
+        worst = int(np.nanargmax(width))
+        text = (
+            f"With **{case['label']}** kappa is **{_level(contr[worst])}** at the worst "
+            f"volume fraction (phi = {sub['phi'].iloc[worst]:g}): its 90% interval spans "
+            f"{_range(width, '.0%')} of the prior range"
+            + (f" (the prior's own: {PRIOR_RELATIVE_WIDTH:.0%})" if not sentences else "")
+            + f", contraction {_range(contr, '.2f')}; c_d's interval "
+            f"is {_range(c_width, '.2g')} kg/m wide; corr(kappa, c_d) {_range(corr, '+.2f')}"
         )
-    missed = table[~table["kappa_in_interval"] & table["kappa_true"].notna()]
-    cover = (
-        "every 90% interval of kappa contains the truth"
-        if missed.empty
-        else "the truth falls outside kappa's 90% interval in "
-        + ", ".join(f"{r.case} at phi = {r.phi:g}" for r in missed.itertuples())
-    )
-    text = "At the worst volume fraction, " + "; ".join(parts) + f". Across the fits, {cover}."
-    return text
+        if np.nanmin(contr) < 0.9 and np.nanmax(np.abs(corr)) >= 0.5:
+            text += " (the two rate terms trade off along a valley of the posterior)"
+        text += f"; {case['seconds'] / 60:.1f} min"
+        text += "" if case["converged"] else ", **not every run converged: provisional**"
+        sentences.append(text + ".")
+    known = table[table["kappa_true"].notna()]
+    missed = known[~known["kappa_in_interval"]]
+    if len(known):
+        n, m = len(known), len(missed)
+        p_tail = float(binom.sf(m - 1, n, 1.0 - CI_PROB)) if m else 1.0
+        sentences.append(
+            f"The truth lies in {n - m} of the {n} 90% intervals of kappa"
+            + (
+                ""
+                if not m
+                else f" (about {n * (1 - CI_PROB):.1f} misses expected; {m} or more has "
+                f"probability {p_tail:.2f} if every interval had its nominal coverage). "
+                "Outside: "
+                + "; ".join(
+                    f"{r.case} at phi = {r.phi:g}, {r.kappa_median:.3f} [{r.kappa_lo:.3f}, "
+                    f"{r.kappa_hi:.3f}]"
+                    for r in missed.itertuples()
+                )
+            )
+            + "."
+        )
+    return " ".join(sentences)
 
 
 def analysis(ctx: common.Context) -> tuple[str, dict]:
@@ -257,6 +276,18 @@ def analysis(ctx: common.Context) -> tuple[str, dict]:
     truth = (
         {round(p, 6): v for p, v in load_truth(truth_path).items()} if truth_path.is_file() else {}
     )
+    every = load_measurements(
+        ctx.data, ctx.experiment, use=list(CASES["heights + trajectories + intrusions"])
+    )
+    sizes = {
+        "jumps": len(every.tables["heights"]),
+        "tracked jumps": int(every.tables["trajectories"]["jump"].nunique()),
+        "frames": len(every.tables["trajectories"]),
+        "tracked commands": sorted(set(every.tables["trajectories"]["command"])),
+        "intrusion tests": int(every.tables["intrusions"]["test"].nunique()),
+        "intrusion speeds [mm/s]": sorted(set(every.tables["intrusions"]["speed_mm_s"])),
+        "intrusion samples": len(every.tables["intrusions"]),
+    }
     cases = [run_case(ctx, label, kinds, truth) for label, kinds in CASES.items()]
     table = pd.DataFrame([row for case in cases for row in case["rows"]])
     ctx.save_table(table, "intervals")
@@ -284,7 +315,17 @@ def analysis(ctx: common.Context) -> tuple[str, dict]:
         f"κ's prior is uniform on [{_KAPPA_PRIOR.lower:g}, {_KAPPA_PRIOR.upper:g}] "
         f"(its own 90% interval spans {PRIOR_RELATIVE_WIDTH:.2f} of the range); c_d's is "
         f"{default_priors()['c_d'].describe()}. Contraction is 1 − var(posterior)/var(prior) "
-        "(0: the data say nothing; 1: they pin it down).",
+        "(0: the data say nothing; 1: they pin it down); c_d's is measured against its wide "
+        "prior, so even an interval several kg/m wide contracts it by about 1.",
+        "",
+        "Data: "
+        + ", ".join(
+            f"{v} {k}"
+            if not isinstance(v, list)
+            else f"{k} {', '.join(f'{x:g}' if isinstance(x, float) else x for x in v)}"
+            for k, v in sizes.items()
+        )
+        + ".",
         "",
         "## Per case and volume fraction",
         "",
@@ -298,10 +339,6 @@ def analysis(ctx: common.Context) -> tuple[str, dict]:
         "",
         "![joint posterior](joint_kappa_c_d.png)",
         "",
-        "## In numbers",
-        "",
-        _conclusion(table, cases),
-        "",
         "## Conclusion",
         "",
         _verdict(table, cases),
@@ -311,6 +348,12 @@ def analysis(ctx: common.Context) -> tuple[str, dict]:
         body += ["", "## Fit warnings", "", *(f"- {w}" for w in warnings)]
     numbers = {
         "terms": list(TERMS),
+        "data_sizes": sizes,
+        "data_files_sha256": {
+            f.name: hashlib.sha256(f.read_bytes()).hexdigest()
+            for f in sorted(ctx.data.iterdir())
+            if f.suffix in (".csv", ".toml")
+        },
         "cases": [
             {
                 "case": c["label"],
@@ -326,5 +369,9 @@ def analysis(ctx: common.Context) -> tuple[str, dict]:
     return "\n".join(body), numbers
 
 
+def main(argv: list[str] | None = None) -> int:
+    return common.main(NAME, __doc__, analysis, argv, _add_arguments)
+
+
 if __name__ == "__main__":
-    sys.exit(common.main(NAME, __doc__, analysis, add_arguments=_add_arguments))
+    sys.exit(main())

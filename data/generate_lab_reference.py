@@ -39,6 +39,7 @@ lab's own scatter (one ``sigma_mm``).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -113,7 +114,9 @@ class DataSet:
     law: Callable[[float], Mapping[str, float]]
     sigma_mm: Callable[[float], float]
     lab_sigma_mm: float  # the lab's own scatter (0: added here, per phi)
+    tracked_commands: tuple[str, ...]  # the commands whose trial 1 is filmed
     what: str
+    size: str  # how long a fit of it takes (measured)
 
 
 def data_sets() -> dict[str, DataSet]:
@@ -130,10 +133,22 @@ def data_sets() -> dict[str, DataSet]:
             law=lambda phi: {k: v for k, v in ref[phi].items() if k != "sigma_mm"},
             sigma_mm=lambda phi: ref[phi]["sigma_mm"],
             lab_sigma_mm=0.0,
+            tracked_commands=("single",),
             what=(
                 "The documented reference truth (`granbayes/data/reference/truth.toml`, "
                 "TRUTH.md there: depth + drag + compaction) on the reference's nominal "
-                "robot, measured by a lab with a high-speed camera and an intrusion rig."
+                "robot, measured by a lab with a high-speed camera and an intrusion rig, "
+                "on a smaller design than the reference's (3 of its 5 volume fractions, "
+                "10 Hz instead of 8 and 12 Hz, 3 trials instead of 5: 45 jumps, not 250)."
+            ),
+            size=(
+                "Small enough to fit in minutes: `granbayes fit "
+                "granbayes/data/reference_tracked --out OUT --terms depth,drag,compaction "
+                "--seed 1` converged (every run; 1700-2500 steps of 4 ensembles of 32 "
+                "walkers) in 11.1 min wall time, 11.1 min CPU, on a 2-core machine shared "
+                "with other work (in effect one core). Filming trial 1 of every cell instead "
+                "(15 jumps, 4365 frames) took 30.6 min (2500-2700 steps), so only the single "
+                "jumps are filmed here."
             ),
         ),
         "added_mass": DataSet(
@@ -143,12 +158,14 @@ def data_sets() -> dict[str, DataSet]:
             law=added_mass_law,
             sigma_mm=lambda phi: 3.0,
             lab_sigma_mm=3.0,
+            tracked_commands=("single", "stutter"),
             what=(
                 "A truth with an added-mass cone (kappa = 1.5) and drag on top of the "
                 "reference's depth law, on the reference's nominal robot: the data set of "
                 "`analyses/kappa_identification.py` (is kappa identified by jump heights "
                 "alone, with tracked jumps, with intrusion curves?)."
             ),
+            size="SIZE_ADDED_MASS",
         ),
     }
 
@@ -166,6 +183,11 @@ def generate(ds: DataSet, out: Path) -> dict[str, int]:
     data = synthetic_lab_data(
         ds.law, seed=ds.seed, design=design, experiment=experiment, label=LABEL
     )
+    # the camera films trial 1 of the cells of ds.tracked_commands only (the lab draws the
+    # frame noise per filmed jump in jump order whatever is kept: still fixed by the seed)
+    frames = data.trajectories
+    kept = frames[frames["command"].isin(ds.tracked_commands)].reset_index(drop=True)
+    data = dataclasses.replace(data, trajectories=kept)
     if ds.lab_sigma_mm == 0.0:  # the reference's scatter per volume fraction
         rng = np.random.default_rng(np.random.SeedSequence(ds.seed).spawn(7)[6])
         sd = data.jumps["phi"].map(ds.sigma_mm).to_numpy(float)
@@ -220,12 +242,13 @@ def _fmt_law(law: Mapping[str, float]) -> str:
 
 def _design_rows(design: LabDesign, data, max_offset: float) -> list[tuple[str, str]]:
     """The README's design table: (measurement, design) per kind."""
+    frames = data.trajectories.groupby("jump").size()
+    filmed = sorted(set(data.trajectories["command"]), key=design.commands.index)
+    span = f"{frames.min()}" if frames.min() == frames.max() else f"{frames.min()}-{frames.max()}"
     lengths = {
         c: build_command(c, data.experiment.replace(freq_hz=design.freqs_hz[0]).command).t_end
-        for c in design.commands
+        for c in filmed
     }
-    frames = data.trajectories.groupby("jump").size()
-    n_cells = len(design.phis) * len(design.freqs_hz) * len(design.commands)
     freqs = ", ".join(f"{f:g}" for f in design.freqs_hz)
     speeds = ", ".join(f"{v:g}" for v in design.intrusion_speeds_mm_s)
     heights = (
@@ -234,14 +257,16 @@ def _design_rows(design: LabDesign, data, max_offset: float) -> list[tuple[str, 
         f"{len(data.jumps)} jumps; Gaussian scatter as above, independent trials"
     )
     tracked = (
-        f"trial 1 of every cell ({n_cells} jumps, {len(data.trajectories)} frames): foot "
+        f"trial 1 of the {' and '.join(filmed)} cells at every phi ({len(frames)} jumps, "
+        f"{len(data.trajectories)} frames; the other commands are not filmed): foot "
         f"height and rod displacement at {design.fps:g} frames/s from "
         f"{design.track_from_s * 1e3:g} ms to {design.track_after_end_s * 1e3:g} ms after "
-        f"the command's end ({frames.min()}-{frames.max()} frames per jump; the commands "
-        "last " + ", ".join(f"{c} {t * 1e3:g} ms" for c, t in lengths.items()) + "); "
+        f"the command's end ({span} frames per jump; the command "
+        "lasts " + ", ".join(f"{c} {t * 1e3:g} ms" for c, t in lengths.items()) + "); "
         f"AR(1) frame noise per coordinate, marginal sd {design.frame_sd_mm} mm, lag-1 "
         f"correlation {design.frame_rho}; a clock offset per jump ~ Normal(0, "
-        f"{design.clock_sd_frames} frames) (largest drawn: {max_offset:.2f} frames)"
+        f"{design.clock_sd_frames} frames) (largest among the filmed jumps: "
+        f"{max_offset:.2f} frames)"
     )
     intrusions = (
         f"{len(design.intrusion_speeds_mm_s)} speeds ({speeds} mm/s) x "
@@ -264,6 +289,8 @@ def _write_readme(ds: DataSet, out: Path, design: LabDesign, data, max_offset: f
     text = f"""# {ds.name}: {_header(ds)}
 
 {ds.what}
+
+{ds.size}
 
 Regenerate with `python {LABEL}` (bit for bit; `--only {ds.name}` for this folder alone).
 Every row of `jumps.csv`, `trajectories.csv` and `intrusions.csv` says
