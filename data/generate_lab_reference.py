@@ -9,13 +9,14 @@ the compiled kernel) and written by ``granbayes.testing.write_lab_experiment``:
   fraction, with its trial-to-trial scatter ``sigma_mm(phi)``) on the same nominal robot
   (``granbayes/data/reference/experiment.toml``), measured the way a lab with a
   high-speed camera and an intrusion rig would: jump heights on a smaller design than the
-  reference's, one filmed jump per cell, intrusion tests at three speeds per volume
-  fraction. Small enough that ``granbayes fit`` on it with its true terms converges in
-  minutes.
+  reference's, the first single jump of every volume fraction filmed, intrusion tests
+  at three speeds per volume fraction. Small enough that ``granbayes fit`` on it with its
+  true terms converges in about 11 minutes on a shared 2-core machine (filming every cell
+  took 31; measured, see its README).
 * ``granbayes/data/added_mass/``: a truth with an added-mass cone (``kappa = 1.5``) and
-  drag on top of the reference's depth law, same robot, same kinds of measurement: a data
-  set on which the question "is kappa identified?" has an answer to find
-  (``analyses/kappa_identification.py``).
+  drag on top of the reference's depth law, same robot, same design except that the
+  single and the stutter jumps are filmed: a data set on which the question "is kappa
+  identified?" has an answer to find (``analyses/kappa_identification.py``).
 
 Every row of every table says ``synthetic: data/generate_lab_reference.py seed=<seed>``
 in its ``source`` column, ``experiment.toml`` starts with a SYNTHETIC comment naming the
@@ -67,7 +68,8 @@ COMMANDS = ("single", "preload", "stutter", "delayed_stutter", "delayed_stutter_
 
 #: What both labs measure and how well: 3 volume fractions x 5 commands x 1 frequency x 3
 #: trials (45 jumps); the first trial of every cell filmed at 1000 frames/s from 10 ms
-#: before the command to 80 ms after its end, with AR(1) frame noise (0.25 mm, lag-1
+#: before the command to 80 ms after its end (only the cells of a data set's
+#: ``tracked_commands`` are kept), with AR(1) frame noise (0.25 mm, lag-1
 #: correlation 0.5) and a clock offset of standard deviation 1.5 frames; intrusion tests
 #: at 1, 500 and 1000 mm/s to 40 mm depth every 0.5 mm with 0.3 N force noise.
 BASE_DESIGN = LabDesign(
@@ -165,7 +167,17 @@ def data_sets() -> dict[str, DataSet]:
                 "`analyses/kappa_identification.py` (is kappa identified by jump heights "
                 "alone, with tracked jumps, with intrusion curves?)."
             ),
-            size="SIZE_ADDED_MASS",
+            size=(
+                "Small enough for three fits in half an hour: the fits of "
+                "`analyses/kappa_identification.py` (depth + drag + added_mass, seed 0) all "
+                "converged, in 0.3-0.6 min (heights), 3-6.5 min (+ tracked jumps) and 9.5-12.5 "
+                "min (+ intrusion curves) wall time over three runs on a 2-core machine "
+                "shared with other work (`docs/analyses/kappa_identification/timings.csv`: "
+                "the last run). The single and "
+                "stutter jumps are filmed (the stutter lands on the bed mid-command: a second "
+                "added-mass episode at speed); filming every cell would about double the cost "
+                "of each evaluation of the tracked jumps' likelihood."
+            ),
         ),
     }
 
