@@ -324,6 +324,29 @@ class Block:
         return {}
 
 
+def noise_coordinates(name: str, prior: Prior, phis: np.ndarray, per_phi: bool) -> list[Coordinate]:
+    """Coordinates of a noise parameter: one per volume fraction, or one for all.
+
+    Parameters
+    ----------
+    name : str
+        The parameter (``force_sd_N``, ``frame_tau_ms``, ...).
+    prior : Prior
+        Its prior.
+    phis : ndarray
+        The volume fractions of the block's measurements.
+    per_phi : bool
+        One coordinate per volume fraction (named ``name[phi]``), else one (``name``).
+
+    Returns
+    -------
+    list of Coordinate
+    """
+    if not per_phi:
+        return [Coordinate(name, name, prior)]
+    return [Coordinate(f"{name}[{phi:g}]", name, prior, phi=float(phi)) for phi in phis]
+
+
 def coordinate_values(
     coords: list[Coordinate], u: np.ndarray, phis: np.ndarray
 ) -> dict[str, np.ndarray]:

@@ -20,7 +20,7 @@ import pandas as pd
 
 from ..priors import Prior
 from ..simulator import ROW_FIELDS, intrusion_force_rows
-from ._blocks import Block, Coordinate, Law, Simulated, coordinate_values
+from ._blocks import Block, Coordinate, Law, Simulated, coordinate_values, noise_coordinates
 
 __all__ = ["IntrusionBlock"]
 
@@ -102,13 +102,8 @@ class IntrusionBlock(Block):
         list of Coordinate
         """
         prior = priors.get("force_sd_N", FORCE_SD_PRIOR)
-        if self.sd_mode == "global":
-            self._coords = [Coordinate("force_sd_N", "force_sd_N", prior)]
-        else:
-            self._coords = [
-                Coordinate(f"force_sd_N[{phi:g}]", "force_sd_N", prior, phi=float(phi))
-                for phi in self._phis
-            ]
+        per_phi = self.sd_mode != "global"
+        self._coords = noise_coordinates("force_sd_N", prior, self._phis, per_phi)
         return list(self._coords)
 
     def with_data(self, table: pd.DataFrame) -> IntrusionBlock:

@@ -56,6 +56,7 @@ from ._blocks import (
     ObservationSettings,
     Simulated,
     coordinate_values,
+    noise_coordinates,
 )
 
 __all__ = ["TrajectoryBlock"]
@@ -250,16 +251,14 @@ class TrajectoryBlock(Block):
         list of Coordinate
         """
         names = [_SD_OF[c] for c in self.positions] + ["frame_tau_ms"]
-        coords = []
-        for name in names:
-            prior = priors.get(name, FRAME_PRIORS[name])
-            if self.settings.sigma_mode == "global":
-                coords.append(Coordinate(name, name, prior))
-            else:
-                coords.extend(
-                    Coordinate(f"{name}[{phi:g}]", name, prior, phi=float(phi))
-                    for phi in self._phis
-                )
+        per_phi = self.settings.sigma_mode != "global"
+        coords = [
+            c
+            for name in names
+            for c in noise_coordinates(
+                name, priors.get(name, FRAME_PRIORS[name]), self._phis, per_phi
+            )
+        ]
         self._coords = coords
         return list(coords)
 
