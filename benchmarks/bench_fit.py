@@ -1,8 +1,10 @@
 """Benchmark: ``granbayes fit`` on the SYNTHETIC reference data set, terms depth + drag.
 
 Target (speed issue): ``granbayes fit`` on the reference data, converged by the
-multi-ensemble rule, in <= 20 s wall on the 2-core machine. Runs the fit as the CLI does
-(HDF5 checkpoint, report with figures) under cProfile and reports where the time goes.
+multi-ensemble rule, in <= 15 s wall for the whole process on the 2-core machine (this
+script times it in-process; the whole process is timed from outside, README). Runs the
+fit as the CLI does (HDF5 checkpoint, report with figures) under cProfile and reports
+where the time goes.
 Writes ``benchmarks/results/fit.json`` and ``fit.md``.
 
 Usage: ``python benchmarks/bench_fit.py [--seed N] [--no-report]``
@@ -34,12 +36,12 @@ DATA = REFERENCE_DATA
 #: (label, function name fragment in the profile) rows of the time breakdown.
 BREAKDOWN = (
     ("simulator (compiled kernel, via simulate_rows)", "simulate_rows"),
-    ("dispersed, optimised starts of the ensembles", "find_starts"),
-    ("emcee sampling incl. likelihood", "run_mcmc"),
+    ("dispersed, optimised starts of the ensembles", "_find_starts_many"),
+    ("sampling, every ensemble side by side, incl. likelihood", "run_side_by_side"),
     ("  of which HDF5 checkpoints", "save_checkpoint"),
-    ("convergence checks (tau, R-hat, ESS)", "_check"),
-    ("posterior predictive replicates", "_replicate"),
-    ("prior draws and prior predictive", "_prior_draws"),
+    ("  of which convergence checks (tau, R-hat, ESS)", "_check"),
+    ("DataTree: draws, posterior and prior predictive, log-likelihood", "_assemble"),
+    ("  of which prior draws and prior predictive", "_prior_draws"),
 )
 
 
@@ -111,7 +113,8 @@ def main() -> None:
     emit(f"### `granbayes fit` on the synthetic reference data (depth + drag), {report['date']}")
     emit("")
     emit(
-        f"- wall time: **{wall:.1f} s** (sampling {t_fit:.1f} s, target <= 20 s); "
+        f"- wall time: **{wall:.1f} s** (the fit {t_fit:.1f} s, the report the rest; "
+        "target for the whole process <= 15 s); "
         f"converged: {report['converged']}; numba threads: {report['numba_threads']}"
     )
     emit(f"- about {n_sims:,} jump simulations")

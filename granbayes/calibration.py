@@ -11,15 +11,28 @@ a library term (``drag``, ``added_mass``, ``stiffening``, ``viscous``, ``compact
 ``unloading``)
     the truth is the baseline plus that term: the verdict is right when it is ``extended``
     with exactly that term added (power);
-``pause_stiffening``, ``rate_stiffening`` (effects outside the library)
-    the truth makes the bed stiffer after a hold (the delayed commands, after grain
-    relaxation during the pause, cf. Hubicki et al. 2017) or stiffer at a higher actuation
-    frequency. No term of the library does either; the right answer is
-    ``misfit_remains``, or a law that truly leaves no misfit (both are recorded).
+``depth_dependent_drag``, ``janssen_saturation``, ``pause_relaxation``,
+``rate_dependent_strength`` (physics outside the library)
+    ground forces of the oracle's out-of-library physics (:mod:`granbayes.testing._effects`,
+    each with its literature): a drag coefficient that grows or fades with depth on either
+    side of ``phi_c`` (on top of a drawn ``c_d``), a depth force that saturates, a bed
+    that relaxes and stiffens during a pause with its own time constant and is
+    rejuvenated by motion, a static resistance that grows with the intrusion rate. The
+    right answer is ``misfit_remains``, or an ``extended`` law that predicts a fresh
+    replicate of the experiment as well as the truth does (:func:`fresh_deficit`): "no
+    misfit cell" alone does not count;
+``pause_stiffening``, ``rate_stiffening`` (earlier out-of-library cases, not forces)
+    ``k`` rescaled per cell: after a hold (the delayed commands) or with the actuation
+    frequency. Each cell on its own is a depth-only law; they are kept so that the
+    committed study (which has them) can be summarised, and judged by the same rule.
 
 Every case draws its robot, noise level, design (volume fractions, frequencies, repeated
 jumps per cell; :data:`DESIGN_RANGES`) and effect size from documented ranges with its own
 seed, so the study measures the rule over a population of plausible experiments, not one.
+The true heights come from the independent oracle of the test kit
+(:func:`granbayes.testing.simulate_height_scipy`), never from the compiled kernel that the
+fits use, so a flaw of the kernel cannot be in both the data and the model; this is the one
+import of the test kit by the package (the study is a test of the package).
 :func:`diagnose_case` is the campaign task (``granbayes.campaign``); each row records
 enough (every candidate's gain and SE, the baseline's misfit statistics) for
 :func:`rederive_verdicts` to recompute the round-1 decision under other thresholds without
@@ -41,7 +54,14 @@ from .commands import COMMAND_NAMES, COMMANDS, CommandSettings
 from .criticism import Candidate, DiagnoseSettings, DiagnosisRecord, diagnose
 from .experiment import Experiment, Robot
 from .sampler import ProgressInfo
-from .simulator import simulate
+from .testing import (
+    DepthDependentDrag,
+    Effect,
+    JanssenSaturation,
+    PauseStiffening,
+    RateStiffening,
+    simulate_height_scipy,
+)
 
 __all__ = [
     "CASE_KINDS",
@@ -49,6 +69,7 @@ __all__ = [
     "EFFECT_RANGES",
     "LIBRARY_EFFECTS",
     "OUT_OF_LIBRARY",
+    "PHYSICAL_EFFECTS",
     "STEP_BUDGET",
     "Case",
     "OUTCOMES",
@@ -56,7 +77,10 @@ __all__ = [
     "StepCounter",
     "diagnose_case",
     "diagnose_folder",
+    "as_good_as_truth",
+    "case_design",
     "clopper_pearson",
+    "fresh_deficit",
     "make_case",
     "outcome",
     "rederive_verdicts",
@@ -73,11 +97,25 @@ EFFECT_RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "unloading": {"r_unload": (2.0, 4.0)},
 }
 LIBRARY_EFFECTS = tuple(EFFECT_RANGES)
-#: Effects no library term represents, and their strength ranges [-].
+#: Effects no library term represents, and the range their strength is drawn from
+#: (uniformly; the unit is the parameter's, below).
 OUT_OF_LIBRARY: dict[str, tuple[float, float]] = {
-    "pause_stiffening": (0.25, 0.40),  # k x (1 + a) for the commands with a hold
-    "rate_stiffening": (0.30, 0.50),  # k x (1 + a (f - 10 Hz) / 10 Hz)
+    "pause_stiffening": (0.25, 0.40),  # k x (1 + a) for the commands with a hold [-]
+    "rate_stiffening": (0.30, 0.50),  # k x (1 + a (f - 10 Hz) / 10 Hz) [-]
+    "depth_dependent_drag": (50.0, 150.0),  # DepthDependentDrag.depth_rate [1/m]
+    "janssen_saturation": (0.03, 0.06),  # JanssenSaturation.lambda_m [m]
+    "pause_relaxation": (0.5, 1.0),  # PauseStiffening.gain [-] (tau_s 40 ms)
+    "rate_dependent_strength": (0.1, 0.3),  # RateStiffening.gain [-] (v_ref 0.05 m/s)
 }
+#: The out-of-library kinds that are ground forces of the oracle (the others rescale k).
+PHYSICAL_EFFECTS = (
+    "depth_dependent_drag",
+    "janssen_saturation",
+    "pause_relaxation",
+    "rate_dependent_strength",
+)
+#: The drag coefficient [kg/m] under a depth-dependent drag (it multiplies ``c_d``).
+_DEPTH_DRAG_C_D = (20.0, 40.0)
 CASE_KINDS = ("null", *LIBRARY_EFFECTS, *OUT_OF_LIBRARY)
 
 #: Sampler steps per walker, summed over every fit, rerun and held-out refit of one case,
@@ -123,12 +161,28 @@ class Case:
         The jumps (``load_jumps`` columns plus ``source``).
     truth : dict
         What was drawn: robot, noise, design, k law and effect size.
+    true_height_mm : ndarray
+        The noise-free heights of the table's rows [mm] (from the oracle).
     """
 
     kind: str
     experiment: Experiment
     table: pd.DataFrame
     truth: dict
+    true_height_mm: np.ndarray
+
+
+def _oracle_effects(kind: str, strength: float) -> tuple[Effect, ...]:
+    """The oracle's out-of-library physics of a physical kind at the drawn strength."""
+    if kind == "depth_dependent_drag":
+        return (DepthDependentDrag(depth_rate=strength),)
+    if kind == "janssen_saturation":
+        return (JanssenSaturation(lambda_m=strength),)
+    if kind == "pause_relaxation":
+        return (PauseStiffening(gain=strength),)
+    if kind == "rate_dependent_strength":
+        return (RateStiffening(gain=strength),)
+    return ()
 
 
 def _k_law(rng: np.random.Generator) -> tuple[float, float, float]:
@@ -140,8 +194,75 @@ def _k_law(rng: np.random.Generator) -> tuple[float, float, float]:
     )
 
 
+def _draw(kind: str, seed: int, trials: int | None) -> tuple[dict[str, Any], np.random.Generator]:
+    """Everything a case draws before its heights, and the generator its noise continues."""
+    if kind not in CASE_KINDS:
+        raise ValueError(f"unknown case kind {kind!r}; expected one of {', '.join(CASE_KINDS)}")
+    rng = np.random.default_rng(seed)
+    robot = Robot(
+        m_motor=float(rng.uniform(0.8, 1.2)),
+        m_rod=float(rng.uniform(0.15, 0.3)),
+        m_foot=float(rng.uniform(0.08, 0.14)),
+        k_spring=float(rng.uniform(4000.0, 7000.0)),
+        c_spring=float(rng.uniform(2.0, 6.0)),
+        foot_radius=float(rng.uniform(0.025, 0.04)),
+    )
+    amplitude_mm = float(rng.uniform(16.0, 20.0))
+    phis = tuple(sorted(float(p) for p in rng.choice(_PHIS, size=2, replace=False)))
+    freqs = tuple(sorted(float(f) for f in rng.choice(_FREQS_HZ, size=2, replace=False)))
+    sigma_mm = float(rng.uniform(1.5, 3.0))
+    if trials is None:
+        trials = int(rng.choice(_TRIALS))
+    k0, k1, k2 = _k_law(rng)
+    effect: dict[str, float] = {}
+    strength = 0.0
+    if kind in EFFECT_RANGES:
+        effect = {n: float(rng.uniform(*r)) for n, r in EFFECT_RANGES[kind].items()}
+    elif kind in OUT_OF_LIBRARY:
+        strength = float(rng.uniform(*OUT_OF_LIBRARY[kind]))
+        if kind == "depth_dependent_drag":
+            effect = {"c_d": float(rng.uniform(*_DEPTH_DRAG_C_D))}
+    truth = {
+        "robot": dataclasses.asdict(robot),
+        "amplitude_mm": amplitude_mm,
+        "phis": list(phis),
+        "freqs_hz": list(freqs),
+        "sigma_mm": sigma_mm,
+        "trials": trials,
+        "k_law": [k0, k1, k2],
+        "effect": effect,
+        "out_of_library_strength": strength,
+    }
+    return truth, rng
+
+
+def case_design(kind: str, seed: int, trials: int | None = None) -> dict[str, Any]:
+    """What :func:`make_case` draws from ``seed`` (robot, design, noise level, truth), cheaply.
+
+    The same values as ``make_case(kind, seed, trials).truth``, without simulating a jump.
+
+    Parameters
+    ----------
+    kind : str
+        One of :data:`CASE_KINDS`.
+    seed : int
+        The case's seed.
+    trials : int, optional
+        Repeated jumps per cell (drawn if not given).
+
+    Returns
+    -------
+    dict
+    """
+    return _draw(kind, seed, trials)[0]
+
+
 def make_case(kind: str, seed: int, trials: int | None = None, replicate: int = 0) -> Case:
     """A SYNTHETIC data set of the given kind (module docstring), drawn from ``seed``.
+
+    The true heights come from the independent oracle
+    (:func:`granbayes.testing.simulate_height_scipy`, with the kind's out-of-library
+    physics where it has some), about 1-2 s per case.
 
     Parameters
     ----------
@@ -160,31 +281,15 @@ def make_case(kind: str, seed: int, trials: int | None = None, replicate: int = 
     -------
     Case
     """
-    if kind not in CASE_KINDS:
-        raise ValueError(f"unknown case kind {kind!r}; expected one of {', '.join(CASE_KINDS)}")
-    rng = np.random.default_rng(seed)
-    robot = Robot(
-        m_motor=float(rng.uniform(0.8, 1.2)),
-        m_rod=float(rng.uniform(0.15, 0.3)),
-        m_foot=float(rng.uniform(0.08, 0.14)),
-        k_spring=float(rng.uniform(4000.0, 7000.0)),
-        c_spring=float(rng.uniform(2.0, 6.0)),
-        foot_radius=float(rng.uniform(0.025, 0.04)),
-    )
-    amplitude_mm = float(rng.uniform(16.0, 20.0))
+    truth, rng = _draw(kind, seed, trials)
+    robot = Robot(**truth["robot"])
+    amplitude_mm = truth["amplitude_mm"]
     experiment = Experiment(robot=robot, command=CommandSettings(amplitude_mm=amplitude_mm))
-    phis = tuple(sorted(float(p) for p in rng.choice(_PHIS, size=2, replace=False)))
-    freqs = tuple(sorted(float(f) for f in rng.choice(_FREQS_HZ, size=2, replace=False)))
-    sigma_mm = float(rng.uniform(1.5, 3.0))
-    if trials is None:
-        trials = int(rng.choice(_TRIALS))
-    k0, k1, k2 = _k_law(rng)
-    effect: dict[str, float] = {}
-    strength = 0.0
-    if kind in EFFECT_RANGES:
-        effect = {n: float(rng.uniform(*r)) for n, r in EFFECT_RANGES[kind].items()}
-    elif kind in OUT_OF_LIBRARY:
-        strength = float(rng.uniform(*OUT_OF_LIBRARY[kind]))
+    phis, freqs, trials = truth["phis"], truth["freqs_hz"], truth["trials"]
+    k0, k1, k2 = truth["k_law"]
+    effect, strength = truth["effect"], truth["out_of_library_strength"]
+    sigma_mm = truth["sigma_mm"]
+    physics = _oracle_effects(kind, strength)
     rows = []
     for phi in phis:
         x = phi - _PHI_C
@@ -199,7 +304,9 @@ def make_case(kind: str, seed: int, trials: int | None = None, replicate: int = 
                 elif kind == "rate_stiffening":
                     scale = 1.0 + strength * (freq - 10.0) / 10.0
                 params = {"k": k * scale, **effect}
-                height = simulate(command, phi, params, experiment=cell_exp).height_mm[0]
+                height = simulate_height_scipy(
+                    command, phi, params, cell_exp, effects=physics or None
+                )
                 for trial in range(1, trials + 1):
                     rows.append(
                         {
@@ -219,18 +326,64 @@ def make_case(kind: str, seed: int, trials: int | None = None, replicate: int = 
     table["source"] = f"synthetic: granbayes.calibration kind={kind} seed={seed}" + (
         f" replicate={replicate}" if replicate else ""
     )
-    truth = {
-        "robot": dataclasses.asdict(robot),
-        "amplitude_mm": amplitude_mm,
-        "phis": list(phis),
-        "freqs_hz": list(freqs),
-        "sigma_mm": sigma_mm,
-        "trials": trials,
-        "k_law": [k0, k1, k2],
-        "effect": effect,
-        "out_of_library_strength": strength,
-    }
-    return Case(kind, experiment, table.drop(columns="true_height_mm"), truth)
+    true_height = table["true_height_mm"].to_numpy(dtype=float)
+    return Case(kind, experiment, table.drop(columns="true_height_mm"), truth, true_height)
+
+
+def fresh_deficit(
+    law: Any, table: pd.DataFrame, true_height_mm: np.ndarray, sigma_mm: float
+) -> tuple[float, float]:
+    """How much worse than the truth a fitted law predicts a fresh replicate [nats].
+
+    ``sum_i [log p_true(y_i) - log p_law(y_i)]`` over the jumps of ``table`` (a replicate
+    the fit never saw: :func:`make_case` with ``replicate > 0``, or any new table of the
+    same experiment), where the truth's density is its Gaussian noise around the true
+    heights and the law's is its posterior predictive density
+    (``law.log_predictive_density``), with the SE of the sum of the paired differences.
+    Positive: the truth predicts better. A law predicts "as well as the truth" when this is
+    within the rule's margin (:func:`as_good_as_truth`).
+
+    Parameters
+    ----------
+    law : FitResult
+        A fitted law (e.g. ``Diagnosis.selected``).
+    table : pandas.DataFrame
+        The fresh jumps.
+    true_height_mm : ndarray
+        Their noise-free heights [mm] (``Case.true_height_mm``).
+    sigma_mm : float
+        The true noise [mm].
+
+    Returns
+    -------
+    deficit, se : float
+    """
+    y = table["height_mm"].to_numpy(dtype=float)
+    truth = stats.norm.logpdf(y, np.asarray(true_height_mm, dtype=float), sigma_mm)
+    diff = truth - np.asarray(law.log_predictive_density(table), dtype=float)
+    return float(np.sum(diff)), float(np.sqrt(len(diff)) * np.std(diff, ddof=1))
+
+
+def as_good_as_truth(deficit: float, se: float, config: DiagnoseSettings | None = None) -> bool:
+    """Whether a law's fresh-replicate deficit is within the rule's margin.
+
+    The rule calls a difference real when it exceeds ``min_gain`` nats *and* ``se_factor``
+    SE (``DiagnoseSettings``); a deficit that is not real by that rule counts as
+    predicting as well as the truth.
+
+    Parameters
+    ----------
+    deficit, se : float
+        From :func:`fresh_deficit` [nats].
+    config : DiagnoseSettings, optional
+        The rule (default settings if omitted).
+
+    Returns
+    -------
+    bool
+    """
+    rule = config or DiagnoseSettings()
+    return not (deficit > rule.min_gain and deficit > rule.se_factor * se)
 
 
 class OverBudget(RuntimeError):
@@ -336,8 +489,12 @@ def diagnose_case(
     sel = rec.selected
     # the selected law against the baseline on a new run of the same experiment: the gain
     # a user would see on fresh data, free of the selection's optimism
-    fresh = make_case(kind, case_seed, replicate=1).table
+    fresh_case = make_case(kind, case_seed, replicate=1)
+    fresh = fresh_case.table
     diff = d.selected.log_predictive_density(fresh) - d.baseline.log_predictive_density(fresh)
+    deficit, deficit_se = fresh_deficit(
+        d.selected, fresh, fresh_case.true_height_mm, fresh_case.truth["sigma_mm"]
+    )
     return [
         {
             **truth,
@@ -350,6 +507,9 @@ def diagnose_case(
             "elpd_gain_cells_se": sel.elpd_gain_cells_se,
             "gain_fresh": float(np.sum(diff)),
             "gain_fresh_se": float(np.sqrt(len(diff)) * np.std(diff, ddof=1)),
+            "deficit_fresh": deficit,
+            "deficit_fresh_se": deficit_se,
+            "as_good_as_truth": as_good_as_truth(deficit, deficit_se, config),
             "n_cells": len(misfit),
             "dof_min": float(misfit["dof"].min()) if "dof" in misfit else np.nan,
             "baseline_max_abs_z": float(misfit["z"].abs().max()),
@@ -589,10 +749,12 @@ def outcome(row: Mapping[str, Any]) -> str:
     """What one case of the study concluded, judged against its truth (:data:`OUTCOMES`).
 
     Right is ``baseline_adequate`` for ``null``, ``extended`` with exactly the hidden term
-    for a library term, and ``misfit_remains`` or a law leaving no misfit for an
-    out-of-library effect; it is "with an indistinguishable term" when a term was reported
-    as tied with an added one. A wrong term named is a *false claim* unless the truth was
-    reported as indistinguishable from it.
+    for a library term, and ``misfit_remains`` or an ``extended`` law that predicts a fresh
+    replicate as well as the truth (``as_good_as_truth``; in rows made before that check,
+    a law leaving no misfit cell) for an out-of-library effect; it is "with an
+    indistinguishable term" when a term was reported as tied with an added one. A wrong
+    term named is a *false claim* unless the truth was reported as indistinguishable from
+    it.
 
     Parameters
     ----------
@@ -620,7 +782,13 @@ def outcome(row: Mapping[str, Any]) -> str:
         if added and added != kind:
             return WRONG_TERM_TIED if kind in ties else FALSE_CLAIM
         return NOT_DETECTED if verdict == "baseline_adequate" else MISFIT_OR_ALARM
-    if verdict == "misfit_remains" or (verdict == "extended" and row["n_residual_misfit"] == 0):
+    if verdict == "misfit_remains":
+        return RIGHT_TIED if ties else RIGHT
+    good = row.get("as_good_as_truth")
+    if good is None or (isinstance(good, float) and np.isnan(good)):
+        # rows of a study made before the fresh-replicate check: no misfit cell left
+        good = row["n_residual_misfit"] == 0
+    if verdict == "extended" and bool(good):
         return RIGHT_TIED if ties else RIGHT
     return FALSE_CLAIM if verdict == "extended" else NOT_DETECTED
 

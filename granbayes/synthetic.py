@@ -10,9 +10,9 @@ import importlib.resources
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
+from ._jump_tables import jump_table
 from .commands import COMMAND_NAMES
 from .experiment import Experiment
 from .simulator import SolverSettings, simulate
@@ -71,30 +71,23 @@ def make_jumps(
     """
     exp = experiment or Experiment()
     opts = options or SolverSettings.converged()
-    rng = np.random.default_rng(seed)
-    sigma = sigma_mm if callable(sigma_mm) else (lambda _phi: float(sigma_mm))
-    rows = []
-    for phi in phis:
-        for freq in freqs_hz:
-            cell_exp = exp.replace(freq_hz=float(freq))
-            for command in commands:
-                res = simulate(command, phi, truth(phi), experiment=cell_exp, options=opts)
-                true_h = float(res.height_mm[0])
-                noise = rng.normal(0.0, sigma(phi), size=trials)
-                for trial in range(trials):
-                    height = true_h + noise[trial]
-                    rows.append(
-                        {
-                            "phi": phi,
-                            "command": command,
-                            "freq_hz": freq,
-                            "trial": trial + 1,
-                            "height_mm": height if decimals is None else round(height, decimals),
-                            "true_height_mm": round(true_h, 4),
-                            "source": f"synthetic: {label} seed={seed}",
-                        }
-                    )
-    return pd.DataFrame(rows)
+
+    def kernel_height(command, phi, params, cell_exp):
+        return simulate(command, phi, params, experiment=cell_exp, options=opts).height_mm[0]
+
+    return jump_table(
+        kernel_height,
+        truth,
+        sigma_mm,
+        experiment=exp,
+        phis=phis,
+        freqs_hz=freqs_hz,
+        commands=commands,
+        trials=trials,
+        seed=seed,
+        label=label,
+        decimals=decimals,
+    )
 
 
 def write_experiment(folder: Path, jumps: pd.DataFrame, experiment: Experiment) -> Path:

@@ -42,7 +42,7 @@ def true_k(phi: float) -> float:
 
 def write_folder(folder: Path, phis=PHIS, trials: int = 2, seed: int = 5) -> Path:
     """A SYNTHETIC experiment folder (the test kit): five commands per phi at 10 Hz,
-    ``trials`` jumps each, the default solver settings, 3 mm of scatter."""
+    ``trials`` jumps each, heights from the independent oracle, 3 mm of scatter."""
     jumps = synthetic_jumps(
         lambda phi: {"k": true_k(phi)},
         3.0,
@@ -50,7 +50,6 @@ def write_folder(folder: Path, phis=PHIS, trials: int = 2, seed: int = 5) -> Pat
         phis=phis,
         trials=trials,
         label="tests/test_api.py",
-        options=gb.SolverSettings(),
     )
     return write_experiment(folder, jumps, gb.Experiment())
 

@@ -14,20 +14,25 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from granbayes import CommandSettings, Experiment, Robot
 from granbayes.calibration import (
     CASE_KINDS,
     DESIGN_RANGES,
     EFFECT_RANGES,
+    OUT_OF_LIBRARY,
     OverBudget,
     StepCounter,
+    as_good_as_truth,
+    case_design,
     clopper_pearson,
     diagnose_case,
+    fresh_deficit,
     make_case,
     outcome,
     rederive_verdicts,
     summarize,
 )
-from granbayes.testing import QUICK_SAMPLER
+from granbayes.testing import QUICK_SAMPLER, JanssenSaturation, simulate_height_scipy
 
 
 @pytest.mark.parametrize("kind", ["null", "drag", "pause_stiffening"])
@@ -47,16 +52,58 @@ def test_cases_are_deterministic_and_labelled(kind: str) -> None:
 
 def test_the_number_of_trials_is_part_of_the_drawn_design() -> None:
     """Without ``trials`` the case draws it (2, 3 or 4 per cell) from its seed; over 30
-    seeds every allowed value occurs (a miss has probability 3 x (2/3)^30 = 2e-5)."""
-    drawn = []
-    for seed in range(30):
-        case = make_case("null", seed)
-        n = case.truth["trials"]
-        assert n in DESIGN_RANGES["trials"]
-        assert (case.table.groupby(["phi", "freq_hz", "command"]).size() == n).all()
-        assert make_case("null", seed).truth["trials"] == n
-        drawn.append(n)
+    seeds every allowed value occurs (a miss has probability 3 x (2/3)^30 = 2e-5). The
+    draws are read with ``case_design`` (no simulation); one case checks the table."""
+    drawn = [case_design("null", seed)["trials"] for seed in range(30)]
+    assert set(drawn) <= set(DESIGN_RANGES["trials"])
     assert set(drawn) == set(DESIGN_RANGES["trials"])
+    case = make_case("null", 5)
+    assert case.truth == case_design("null", 5)
+    assert (case.table.groupby(["phi", "freq_hz", "command"]).size() == drawn[5]).all()
+
+
+def test_out_of_library_physics_comes_from_the_oracle() -> None:
+    """A physical kind's heights are the oracle's with its effect; its fresh replicate has
+    the same truth and new noise; the truth scores itself with no deficit."""
+    case = make_case("janssen_saturation", 3, trials=2)
+    lam = case.truth["out_of_library_strength"]
+    lo, hi = OUT_OF_LIBRARY["janssen_saturation"]
+    assert lo <= lam <= hi
+    first = case.table.iloc[0]
+    robot = Robot(**case.truth["robot"])
+    exp = Experiment(
+        robot=robot,
+        command=CommandSettings(amplitude_mm=case.truth["amplitude_mm"], freq_hz=first.freq_hz),
+    )
+    k0, k1, k2 = case.truth["k_law"]
+    x = first.phi - 0.612
+    law = {"k": k0 + k1 * x + k2 * x * x}
+    saturated = simulate_height_scipy(
+        first.command, first.phi, law, exp, effects=(JanssenSaturation(lam),)
+    )
+    plain = simulate_height_scipy(first.command, first.phi, law, exp)
+    assert case.true_height_mm[0] == saturated != plain
+    fresh = make_case("janssen_saturation", 3, trials=2, replicate=1)
+    np.testing.assert_array_equal(fresh.true_height_mm, case.true_height_mm)
+    assert not fresh.table["height_mm"].equals(case.table["height_mm"])
+
+    sigma = case.truth["sigma_mm"]
+
+    class Truth:
+        """A "law" that predicts with the true density."""
+
+        @staticmethod
+        def log_predictive_density(table):
+            y = table["height_mm"].to_numpy()
+            return -0.5 * ((y - fresh.true_height_mm) / sigma) ** 2 - np.log(
+                sigma * np.sqrt(2 * np.pi)
+            )
+
+    deficit, se = fresh_deficit(Truth(), fresh.table, fresh.true_height_mm, sigma)
+    assert abs(deficit) < 1e-9 and se < 1e-9
+    assert as_good_as_truth(deficit, se)
+    assert not as_good_as_truth(4.5, 2.0) and as_good_as_truth(4.5, 2.3)
+    assert as_good_as_truth(3.9, 0.1)
 
 
 def test_unknown_kind_is_refused() -> None:
@@ -266,6 +313,23 @@ def test_a_case_row_scores_the_selected_law_on_fresh_data() -> None:
         ({"kind": "drag", "verdict": "baseline_adequate", "added": ""}, "not detected"),
         ({"kind": "rate_stiffening", "verdict": "misfit_remains", "added": "viscous"}, "right"),
         ({"kind": "rate_stiffening", "verdict": "baseline_adequate", "added": ""}, "not detected"),
+        # physics outside the library: a term named is right only if its law predicts a
+        # fresh replicate as well as the truth; a misfit cell left or not does not decide
+        (
+            {"kind": "pause_relaxation", "verdict": "extended", "added": "compaction"}
+            | {"as_good_as_truth": True},
+            "right",
+        ),
+        (
+            {"kind": "janssen_saturation", "verdict": "extended", "added": "stiffening"}
+            | {"as_good_as_truth": False, "n_residual_misfit": 0},
+            "false claim",
+        ),
+        (
+            {"kind": "depth_dependent_drag", "verdict": "misfit_remains", "added": "drag"}
+            | {"as_good_as_truth": False},
+            "right",
+        ),
         ({"kind": "drag", "verdict": "over_budget", "added": ""}, "over budget"),
     ],
 )

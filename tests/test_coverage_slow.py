@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from granbayes import Experiment, SolverSettings
+from granbayes import Experiment
 from granbayes.fitting import FitSettings, fit
 from granbayes.sampler import SamplerSettings
 from granbayes.testing import synthetic_jumps
@@ -20,7 +20,7 @@ MIN_COVERAGE = 0.7
 
 
 def replicate_table(seed: int) -> pd.DataFrame:
-    """One SYNTHETIC replicate (the test kit): the true heights (default solver settings)
+    """One SYNTHETIC replicate (the test kit): the true heights (the independent oracle)
     plus seeded Gaussian noise of 3 mm, not rounded, with the command-setting columns."""
     return synthetic_jumps(
         {"k": TRUE_K},
@@ -29,7 +29,6 @@ def replicate_table(seed: int) -> pd.DataFrame:
         phis=(PHI,),
         trials=TRIALS,
         label="tests/test_coverage_slow.py",
-        options=SolverSettings(),
         decimals=None,
         settings_columns=True,
     )

@@ -30,7 +30,6 @@ import granbayes.stats as gstats
 from granbayes import (
     COMMAND_NAMES,
     Experiment,
-    SolverSettings,
     load_experiment,
     load_jumps,
     simulate,
@@ -116,8 +115,8 @@ def write_synthetic_experiment(
     """Write a SYNTHETIC experiment folder (experiment.toml + jumps.csv) and return it.
 
     Heights (the test kit, :func:`granbayes.testing.synthetic_jumps`): the depth-only truth
-    ``k = TRUE_K`` simulated with the default solver settings for the given commands at
-    every ``phi`` and frequency, plus seeded Gaussian noise of ``TRUE_SIGMA_MM``, rounded
+    ``k = TRUE_K`` simulated by the independent oracle for the given commands at every
+    ``phi`` and frequency, plus seeded Gaussian noise of ``TRUE_SIGMA_MM``, rounded
     to micrometres like a lab table.
     """
     jumps = synthetic_jumps(
@@ -129,7 +128,6 @@ def write_synthetic_experiment(
         commands=commands,
         trials=trials,
         label="tests/test_fit.py",
-        options=SolverSettings(),
     )
     return write_experiment(folder, jumps, Experiment(phi_c=PHI_C))
 

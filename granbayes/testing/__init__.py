@@ -1,9 +1,10 @@
 """Test kit: the independent scipy oracle, its out-of-library physics, and data factories.
 
 This module is public so that tests, benchmarks and other implementations of the model can
-check themselves against one reference (like ``arviz_base.testing``). It is not imported by
-``granbayes`` itself. The oracle is the source of the data that test the fitting code: the
-compiled kernel never makes its own test data. It holds:
+check themselves against one reference (like ``arviz_base.testing``). The package imports it
+in one place only: the verdict study (``granbayes.calibration``) makes its data sets with the
+oracle. The oracle is the source of the data that test the fitting code: the compiled kernel
+never makes its own test data (``tests/test_layers.py`` checks who imports what). It holds:
 
 * the oracle, a ``scipy.integrate.solve_ivp`` implementation of ``docs/physics-model.md``
   that shares no numerical code with the compiled integrator (``granbayes._kernel``):
@@ -27,10 +28,11 @@ compiled kernel never makes its own test data. It holds:
   (``granbayes.fit``), made without a sampler or a simulator (a linear surrogate of the
   heights), for tests of statistics, figures and reports (like ``arviz_base.testing``);
 * :func:`synthetic_jumps`, SYNTHETIC jump tables for tests: a known force law simulated
-  for every cell of a small design plus seeded Gaussian scatter. It is a thin layer over
-  the public generator :func:`granbayes.synthetic.make_jumps` (same draws, same rows), which
-  adds what tests need: a constant law given as a mapping, the command-setting columns of
-  a batch table, and no ``true_height_mm`` column unless asked for. Write a table as an
+  by the oracle for every cell of a small design plus seeded Gaussian scatter, with the
+  rows and draws of the public generator :func:`granbayes.synthetic.make_jumps` (which
+  uses the kernel, for users' own synthetic experiments) and what tests need: a constant
+  law given as a mapping, oracle effects, the command-setting columns of a batch table,
+  and no ``true_height_mm`` column unless asked for. Write a table as an
   experiment folder with :func:`granbayes.synthetic.write_experiment`.
 
 The oracle follows ``docs/physics-model.md`` directly, with Python right-hand sides and
