@@ -19,7 +19,9 @@ seed. ``diagnose`` starts from the depth-only law and must
 A null case (no hidden effect) must give ``baseline_adequate``. The confusable pair drag /
 viscous is separated by the two frequencies (different intrusion speeds): each wins by
 ELPD when it is the truth, by the rule's margin (more than 4 nats and 2 SE of the paired
-difference), or its rival is screened out.
+difference), or its rival is screened out; with drag as the truth this design does not
+reach the margin (6.0 +- 4.0 nats, a strict ``xfail`` that records it), and the diagnosis
+must then report the tie.
 
 Effects *outside* the library (``granbayes.calibration.OUT_OF_LIBRARY``: four ground
 forces of the oracle's out-of-library physics, a depth-dependent drag, a saturating depth
@@ -102,9 +104,10 @@ def _diagnosis(term: str | None, screen: bool = True):
 
 
 #: The cases ``.ci/run`` runs on every submission (marker ``ci_subset``): a false
-#: discovery, a hidden term and an effect outside the library. The whole suite runs with
+#: discovery, a hidden term and an effect outside the library (a ground force of the
+#: oracle: a bed that relaxes and stiffens during a pause). The whole suite runs with
 #: ``make test-slow``.
-CI_SUBSET = ("null", "compaction", "pause_stiffening")
+CI_SUBSET = ("null", "compaction", "pause_relaxation")
 
 
 def _marks(name: str) -> list:
@@ -147,7 +150,22 @@ def test_null_case_keeps_the_baseline() -> None:
 @pytest.mark.parametrize(
     ("truth", "rival"),
     [
-        pytest.param("drag", "viscous", marks=pytest.mark.xdist_group("drag")),
+        pytest.param(
+            "drag",
+            "viscous",
+            marks=[
+                pytest.mark.xdist_group("drag"),
+                # measured 2026-11-26 (oracle data, seed 11, diagnosis seed 5): drag beats
+                # viscous by 6.0 +- 4.0 nats, 1.5 SE, short of the rule's 2 SE; the
+                # diagnosis reports the tie (test_an_unseparated_pair_is_reported_as_a_tie).
+                # strict: a design or sampler change that separates them must say so here.
+                pytest.mark.xfail(
+                    strict=True,
+                    reason="7 and 12 Hz x 3 trials do not separate drag from viscous by the "
+                    "rule's margin when drag is the truth (6.0 +- 4.0 nats)",
+                ),
+            ],
+        ),
         pytest.param("viscous", "drag", marks=pytest.mark.xdist_group("viscous")),
     ],
 )
@@ -168,6 +186,32 @@ def test_two_frequencies_separate_drag_from_viscous(truth: str, rival: str) -> N
     assert margin > CONFIG.min_gain and margin > CONFIG.se_factor * se
     assert np.isfinite(first[rival].elpd)
     assert first[rival].converged
+
+
+@pytest.mark.parametrize(
+    "truth",
+    [
+        pytest.param("drag", marks=pytest.mark.xdist_group("drag")),
+        pytest.param("viscous", marks=pytest.mark.xdist_group("viscous")),
+    ],
+)
+def test_an_unseparated_pair_is_reported_as_a_tie(truth: str) -> None:
+    """Where the data do not separate the rate laws by the rule's margin, the diagnosis
+    says so: the rival fitted and not beaten is listed as indistinguishable from the truth."""
+    d = _diagnosis(truth)
+    rival = {"drag": "viscous", "viscous": "drag"}[truth]
+    first = {c.term: c for c in d.candidates if c.round == 1}
+    rec = d.to_json()
+    assert rec["selected"]["added"] == [truth]
+    ties = {t["term"] for t in rec["selected"]["indistinguishable"]}
+    if first[rival].screened_out:
+        assert rival not in ties
+        return
+    loo = {t: stats.loo(d.fits[terms_of(("depth", t))].datatree) for t in (truth, rival)}
+    margin, se = stats.elpd_difference(loo[truth]["elpd_i"], loo[rival]["elpd_i"])
+    separated = margin > CONFIG.min_gain and margin > CONFIG.se_factor * se
+    print(f"{truth} vs {rival}: {margin:.1f} +- {se:.1f}, reported ties {sorted(ties)}")
+    assert (rival in ties) == (not separated)
 
 
 @pytest.mark.parametrize("effect", [pytest.param(e, marks=_marks(e)) for e in OUT_OF_LIBRARY])
