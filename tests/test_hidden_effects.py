@@ -106,8 +106,8 @@ def _diagnosis(term: str | None, screen: bool = True):
 #: The cases ``.ci/run`` runs on every submission (marker ``ci_subset``): a false
 #: discovery, a hidden term and an effect outside the library (a ground force of the
 #: oracle: a depth force that saturates; the cheapest of the four, 40 s, which keeps
-#: ``.ci/run`` under 8 minutes: with the pause-relaxing bed, 85 s, it took 8 min 3 s). The whole suite runs with
-#: ``make test-slow``.
+#: ``.ci/run`` under 8 minutes: with the pause-relaxing bed, 85 s, it took 8 min 3 s).
+#: The whole suite runs with ``make test-slow``.
 CI_SUBSET = ("null", "compaction", "janssen_saturation")
 
 
