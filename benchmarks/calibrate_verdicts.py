@@ -188,11 +188,12 @@ def figure(results: pd.DataFrame, summary: pd.DataFrame) -> Figure:
     ax.set_ylim(0, 1.02)
     ax.set_ylabel("fraction of cases")
     ax.set_title(
-        "SYNTHETIC data (granbayes.calibration, benchmarks/calibrate_verdicts.py): what "
-        "diagnose concluded, by hidden truth\nnull: right = baseline_adequate; library term: "
-        "extended with that term; outside the library: misfit_remains or a law as good as "
-        "the truth on a fresh replicate",
+        "SYNTHETIC data (granbayes.calibration, benchmarks/calibrate_verdicts.py):\n"
+        "what diagnose concluded, by hidden truth. Right: null -> baseline_adequate;\n"
+        "library term -> extended with that term; outside the library -> misfit_remains\n"
+        "or a law as good as the truth on a fresh replicate",
         fontsize=8,
+        loc="left",
     )
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return fig
