@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -51,7 +51,7 @@ import pandas as pd
 from scipy import stats
 
 from .commands import COMMAND_NAMES, COMMANDS, CommandSettings
-from .criticism import Candidate, DiagnoseSettings, DiagnosisRecord, diagnose
+from .criticism import Candidate, DiagnoseSettings, DiagnosisRecord, diagnose, distinguished
 from .experiment import Experiment, Robot
 from .sampler import ProgressInfo
 from .testing import (
@@ -107,13 +107,15 @@ OUT_OF_LIBRARY: dict[str, tuple[float, float]] = {
     "pause_relaxation": (0.5, 1.0),  # PauseStiffening.gain [-] (tau_s 40 ms)
     "rate_dependent_strength": (0.1, 0.3),  # RateStiffening.gain [-] (v_ref 0.05 m/s)
 }
+#: The oracle's physics of each out-of-library kind that is a ground force, at a strength.
+_PHYSICS: dict[str, Callable[[float], Effect]] = {
+    "depth_dependent_drag": lambda s: DepthDependentDrag(depth_rate=s),
+    "janssen_saturation": lambda s: JanssenSaturation(lambda_m=s),
+    "pause_relaxation": lambda s: PauseStiffening(gain=s),
+    "rate_dependent_strength": lambda s: RateStiffening(gain=s),
+}
 #: The out-of-library kinds that are ground forces of the oracle (the others rescale k).
-PHYSICAL_EFFECTS = (
-    "depth_dependent_drag",
-    "janssen_saturation",
-    "pause_relaxation",
-    "rate_dependent_strength",
-)
+PHYSICAL_EFFECTS = tuple(_PHYSICS)
 #: The drag coefficient [kg/m] under a depth-dependent drag (it multiplies ``c_d``).
 _DEPTH_DRAG_C_D = (20.0, 40.0)
 CASE_KINDS = ("null", *LIBRARY_EFFECTS, *OUT_OF_LIBRARY)
@@ -170,19 +172,6 @@ class Case:
     table: pd.DataFrame
     truth: dict
     true_height_mm: np.ndarray
-
-
-def _oracle_effects(kind: str, strength: float) -> tuple[Effect, ...]:
-    """The oracle's out-of-library physics of a physical kind at the drawn strength."""
-    if kind == "depth_dependent_drag":
-        return (DepthDependentDrag(depth_rate=strength),)
-    if kind == "janssen_saturation":
-        return (JanssenSaturation(lambda_m=strength),)
-    if kind == "pause_relaxation":
-        return (PauseStiffening(gain=strength),)
-    if kind == "rate_dependent_strength":
-        return (RateStiffening(gain=strength),)
-    return ()
 
 
 def _k_law(rng: np.random.Generator) -> tuple[float, float, float]:
@@ -289,7 +278,7 @@ def make_case(kind: str, seed: int, trials: int | None = None, replicate: int = 
     k0, k1, k2 = truth["k_law"]
     effect, strength = truth["effect"], truth["out_of_library_strength"]
     sigma_mm = truth["sigma_mm"]
-    physics = _oracle_effects(kind, strength)
+    physics = (_PHYSICS[kind](strength),) if kind in _PHYSICS else None
     rows = []
     for phi in phis:
         x = phi - _PHI_C
@@ -304,9 +293,7 @@ def make_case(kind: str, seed: int, trials: int | None = None, replicate: int = 
                 elif kind == "rate_stiffening":
                     scale = 1.0 + strength * (freq - 10.0) / 10.0
                 params = {"k": k * scale, **effect}
-                height = simulate_height_scipy(
-                    command, phi, params, cell_exp, effects=physics or None
-                )
+                height = simulate_height_scipy(command, phi, params, cell_exp, effects=physics)
                 for trial in range(1, trials + 1):
                     rows.append(
                         {
@@ -360,7 +347,11 @@ def fresh_deficit(
     """
     y = table["height_mm"].to_numpy(dtype=float)
     truth = stats.norm.logpdf(y, np.asarray(true_height_mm, dtype=float), sigma_mm)
-    diff = truth - np.asarray(law.log_predictive_density(table), dtype=float)
+    return _paired_sum(truth - np.asarray(law.log_predictive_density(table), dtype=float))
+
+
+def _paired_sum(diff: np.ndarray) -> tuple[float, float]:
+    """Sum of paired pointwise differences [nats] and its SE, ``sqrt(n) sd(diff)`` (n - 1)."""
     return float(np.sum(diff)), float(np.sqrt(len(diff)) * np.std(diff, ddof=1))
 
 
@@ -368,8 +359,8 @@ def as_good_as_truth(deficit: float, se: float, config: DiagnoseSettings | None 
     """Whether a law's fresh-replicate deficit is within the rule's margin.
 
     The rule calls a difference real when it exceeds ``min_gain`` nats *and* ``se_factor``
-    SE (``DiagnoseSettings``); a deficit that is not real by that rule counts as
-    predicting as well as the truth.
+    SE (:func:`granbayes.criticism.distinguished`, the test a term must pass to be added);
+    a deficit that is not real by that rule counts as predicting as well as the truth.
 
     Parameters
     ----------
@@ -382,8 +373,7 @@ def as_good_as_truth(deficit: float, se: float, config: DiagnoseSettings | None 
     -------
     bool
     """
-    rule = config or DiagnoseSettings()
-    return not (deficit > rule.min_gain and deficit > rule.se_factor * se)
+    return not distinguished(deficit, se, config or DiagnoseSettings())
 
 
 class OverBudget(RuntimeError):
@@ -491,7 +481,9 @@ def diagnose_case(
     # a user would see on fresh data, free of the selection's optimism
     fresh_case = make_case(kind, case_seed, replicate=1)
     fresh = fresh_case.table
-    diff = d.selected.log_predictive_density(fresh) - d.baseline.log_predictive_density(fresh)
+    gain_fresh, gain_fresh_se = _paired_sum(
+        d.selected.log_predictive_density(fresh) - d.baseline.log_predictive_density(fresh)
+    )
     deficit, deficit_se = fresh_deficit(
         d.selected, fresh, fresh_case.true_height_mm, fresh_case.truth["sigma_mm"]
     )
@@ -505,8 +497,8 @@ def diagnose_case(
             "elpd_gain_se": sel.elpd_gain_se,
             "elpd_gain_cells": sel.elpd_gain_cells,
             "elpd_gain_cells_se": sel.elpd_gain_cells_se,
-            "gain_fresh": float(np.sum(diff)),
-            "gain_fresh_se": float(np.sqrt(len(diff)) * np.std(diff, ddof=1)),
+            "gain_fresh": gain_fresh,
+            "gain_fresh_se": gain_fresh_se,
             "deficit_fresh": deficit,
             "deficit_fresh_se": deficit_se,
             "as_good_as_truth": as_good_as_truth(deficit, deficit_se, config),

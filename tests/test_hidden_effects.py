@@ -48,7 +48,7 @@ import pytest
 
 from granbayes import CommandSettings, Experiment, Robot, stats
 from granbayes.calibration import OUT_OF_LIBRARY, as_good_as_truth, fresh_deficit, make_case
-from granbayes.criticism import DiagnoseSettings, diagnose
+from granbayes.criticism import DiagnoseSettings, diagnose, distinguished
 from granbayes.forces import terms_of
 from granbayes.testing import synthetic_jumps
 
@@ -94,6 +94,12 @@ def _fresh_deficit(law, term: str | None) -> tuple[float, float]:
     """The truth's advantage over ``law`` on a fresh replicate (seed 12) [nats], and its SE."""
     fresh = _table(term, seed=12)
     return fresh_deficit(law, fresh, fresh["true_height_mm"].to_numpy(), SIGMA_MM)
+
+
+def _rate_law_margin(d, truth: str, rival: str) -> tuple[float, float]:
+    """PSIS-LOO ELPD of ``depth + truth`` minus ``depth + rival`` [nats], and its SE."""
+    loo = {t: stats.loo(d.fits[terms_of(("depth", t))].datatree) for t in (truth, rival)}
+    return stats.elpd_difference(loo[truth]["elpd_i"], loo[rival]["elpd_i"])
 
 
 @functools.cache
@@ -181,10 +187,9 @@ def test_two_frequencies_separate_drag_from_viscous(truth: str, rival: str) -> N
         print(f"{rival} screened out: {first[rival].screen_gain:.1f} vs {first[truth].gain:.1f}")
         assert first[rival].screen_gain < first[truth].gain
         return
-    loo = {t: stats.loo(d.fits[terms_of(("depth", t))].datatree) for t in (truth, rival)}
-    margin, se = stats.elpd_difference(loo[truth]["elpd_i"], loo[rival]["elpd_i"])
+    margin, se = _rate_law_margin(d, truth, rival)
     print(f"{truth} vs {rival}: elpd margin {margin:.1f} +- {se:.1f}")
-    assert margin > CONFIG.min_gain and margin > CONFIG.se_factor * se
+    assert distinguished(margin, se, CONFIG)
     assert np.isfinite(first[rival].elpd)
     assert first[rival].converged
 
@@ -208,9 +213,8 @@ def test_an_unseparated_pair_is_reported_as_a_tie(truth: str) -> None:
     if first[rival].screened_out:
         assert rival not in ties
         return
-    loo = {t: stats.loo(d.fits[terms_of(("depth", t))].datatree) for t in (truth, rival)}
-    margin, se = stats.elpd_difference(loo[truth]["elpd_i"], loo[rival]["elpd_i"])
-    separated = margin > CONFIG.min_gain and margin > CONFIG.se_factor * se
+    margin, se = _rate_law_margin(d, truth, rival)
+    separated = distinguished(margin, se, CONFIG)
     print(f"{truth} vs {rival}: {margin:.1f} +- {se:.1f}, reported ties {sorted(ties)}")
     assert (rival in ties) == (not separated)
 
