@@ -58,9 +58,12 @@ from .testing import (
     DepthDependentDrag,
     Effect,
     JanssenSaturation,
+    LabDesign,
     PauseStiffening,
     RateStiffening,
     simulate_height_scipy,
+    synthetic_lab_data,
+    write_lab_experiment,
 )
 
 __all__ = [
@@ -75,8 +78,10 @@ __all__ = [
     "OUTCOMES",
     "OverBudget",
     "StepCounter",
+    "MISCALIBRATION",
     "diagnose_case",
     "diagnose_folder",
+    "diagnose_miscalibrated",
     "as_good_as_truth",
     "case_design",
     "clopper_pearson",
@@ -589,6 +594,109 @@ def diagnose_folder(
                 ]
             ),
             "wall_time_s": time.perf_counter() - t0,
+        }
+    ]
+
+
+#: The null study of a robot known only to its calibration (:func:`diagnose_miscalibrated`):
+#: one standard deviation of each calibrated parameter of the nominal robot
+#: (``Experiment()``), as written to ``[robot.uncertainty]`` [TOML units].
+MISCALIBRATION: dict[str, float] = {"k_spring": 172.8, "m_motor": 0.02, "amplitude_mm": 0.4}
+
+
+def diagnose_miscalibrated(
+    calibration: str, *, seed: int, trials: int = 4, config: DiagnoseSettings | None = None
+) -> list[dict[str, Any]]:
+    """Campaign task: ``diagnose`` on null data from a robot known only to its calibration.
+
+    The SYNTHETIC lab (:func:`granbayes.testing.synthetic_lab_data`, the oracle) draws the
+    robot's true spring, motor mass and stroke from their calibration (Normal(nominal,
+    :data:`MISCALIBRATION`)), a depth-only law ``k(phi)`` (the verdict study's quadratic
+    ranges) and a scatter of 1-2 mm, and measures 5 volume fractions x 2 frequencies x 5
+    commands x ``trials`` jumps. The truth is the baseline law: every verdict other than
+    ``baseline_adequate`` is a false discovery. ``calibration`` is the diagnosis's
+    (``"sample"``: every fit samples the three parameters with their calibration as
+    prior; ``"nominal"``: takes them as exact).
+
+    Parameters
+    ----------
+    calibration : {"sample", "nominal"}
+    seed : int
+        The data are drawn from it (the same data for both ``calibration`` values), and
+        ``diagnose`` gets a spawned one.
+    trials : int
+        Jumps per cell.
+    config : DiagnoseSettings, optional
+        The rule and sampler settings (its ``calibration`` is replaced).
+
+    Returns
+    -------
+    list of dict
+        One row: the truth (each parameter's offset from nominal in calibration sds, the
+        scatter), the verdict, the terms added, the gain and SE, convergence, fits, wall
+        time [s].
+    """
+    import tempfile
+    from pathlib import Path
+
+    from .experiment import load_experiment
+    from .kinds import load_measurements
+
+    data_seed, diag_seed = (
+        int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(2)
+    )
+    rng = np.random.default_rng(data_seed)
+    k0, k1, k2 = _k_law(rng)
+    sigma_mm = float(rng.uniform(1.0, 2.0))
+    design = LabDesign(
+        phis=(0.592, 0.602, 0.612, 0.622, 0.632),
+        commands=COMMAND_NAMES,
+        freqs_hz=(10.0, 12.0),
+        trials=trials,
+        sigma_mm=sigma_mm,
+        tracked_trials=0,
+        intrusion_speeds_mm_s=(),
+        robot_sd=MISCALIBRATION,
+    )
+    lab = synthetic_lab_data(
+        lambda phi: {"k": k0 + k1 * (phi - _PHI_C) + k2 * (phi - _PHI_C) ** 2},
+        seed=data_seed,
+        design=design,
+    )
+    config = dataclasses.replace(config or DiagnoseSettings(), calibration=calibration)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = write_lab_experiment(Path(tmp) / "lab", lab)
+        experiment = load_experiment(folder)
+        data = load_measurements(folder, experiment)
+        d = diagnose(
+            experiment, data, config, seed=diag_seed, data_source=lab.source, log=lambda *a: None
+        )
+    rec = d.record
+    true_robot = dataclasses.asdict(lab.true_experiment.robot) | {
+        "amplitude_mm": lab.true_experiment.command.amplitude_mm
+    }
+    nominal = dataclasses.asdict(lab.experiment.robot) | {
+        "amplitude_mm": lab.experiment.command.amplitude_mm
+    }
+    return [
+        {
+            "seed": int(seed),
+            "calibration": calibration,
+            **{
+                f"{k}_offset_sd": (true_robot[k] - nominal[k]) / sd
+                for k, sd in MISCALIBRATION.items()
+            },
+            "sigma_mm": sigma_mm,
+            "verdict": rec.verdict.value,
+            "added": "+".join(rec.selected.added),
+            "claim": _claim(rec),
+            "elpd_gain": rec.selected.elpd_gain,
+            "elpd_gain_se": rec.selected.elpd_gain_se,
+            "n_misfit_cells": rec.n_misfit_cells,
+            "all_converged": rec.all_converged,
+            "n_fits": len(rec.fits),
+            "wall_s": time.perf_counter() - t0,
         }
     ]
 

@@ -568,6 +568,13 @@ def _add_inference_arguments(
     )
     parser.add_argument("--threads", type=int, help=threads_help)
     parser.add_argument(
+        "--calibration",
+        choices=("sample", "nominal"),
+        default="sample",
+        help="robot parameters with an uncertainty in experiment.toml: sampled with their "
+        "calibration as prior (default), or taken at their nominal values as exact",
+    )
+    parser.add_argument(
         "--quiet", action="store_true", help="no progress bars or progress messages"
     )
     parser.add_argument(
@@ -675,6 +682,7 @@ def _fit_config(args: argparse.Namespace):
             sigma_mode=args.sigma,
             sampler=sampler,
             n_threads=args.threads,
+            calibration=args.calibration,
         )
     except ValueError as exc:
         raise UsageError(f"--terms {args.terms}: {exc}") from None
@@ -824,6 +832,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
         candidates=None if args.candidates is None else terms(args.candidates, "--candidates"),
         screen=not args.no_screen,
         n_threads=args.threads,
+        calibration=args.calibration,
     )
     config = dc.replace(
         config,
@@ -921,7 +930,7 @@ def run_sbc_command(args: argparse.Namespace) -> int:
         n_walkers=args.walkers, n_ensembles=args.ensembles, max_steps=args.max_steps
     )
     try:
-        config = FitSettings(terms=terms, sampler=sampler)
+        config = FitSettings(terms=terms, sampler=sampler, calibration=args.calibration)
     except ValueError as exc:
         raise UsageError(f"--terms {args.terms}: {exc}") from None
     if args.replicates < 1:

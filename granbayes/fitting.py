@@ -45,6 +45,7 @@ from .experiment import Experiment
 from .forces import PARAMETERS, terms_of
 from .kinds import KINDS, blocks_for
 from .likelihood import (
+    CALIBRATED_KEYS,
     HeightBlock,
     JumpModel,
     NoiseFamily,
@@ -54,7 +55,7 @@ from .likelihood import (
     SigmaMode,
     evaluate_models,
 )
-from .priors import Prior, default_priors
+from .priors import Prior, calibration_priors, default_priors
 from .sampler import ProgressInfo, RunSpec, SamplerRun, SamplerSettings, run_side_by_side
 from .simulator import SolverSettings
 
@@ -105,6 +106,13 @@ class FitSettings:
     n_prior_draws : int
         Prior draws (and their simulated heights) stored in the DataTree's ``prior`` and
         ``prior_predictive`` groups (0: none).
+    calibration : {"sample", "nominal"}
+        ``"sample"``: the robot parameters ``experiment.toml`` gives an uncertainty
+        (``[robot.uncertainty]``; the robot's own and ``amplitude_mm``) are parameters of
+        the fit with their calibration as prior, one value per sampler run (``quadratic``:
+        one for all volume fractions; ``per_phi``: each volume fraction integrates over its
+        own, see the module docstring); ``"nominal"``: take the nominal values as exact
+        (the fit warns). Without uncertainties both are the same fit, bit for bit.
     """
 
     terms: tuple[str, ...] = ("depth",)
@@ -117,12 +125,15 @@ class FitSettings:
     options: SolverSettings = field(default_factory=SolverSettings)
     n_threads: int | None = None
     n_prior_draws: int = 200
+    calibration: Literal["sample", "nominal"] = "sample"
 
     def __post_init__(self) -> None:
         """Put the terms in canonical order and check the modes."""
         object.__setattr__(self, "terms", terms_of(self.terms))
         if self.phi_mode not in ("per_phi", "quadratic"):
             raise ValueError(f"phi_mode must be 'per_phi' or 'quadratic', got {self.phi_mode!r}")
+        if self.calibration not in ("sample", "nominal"):
+            raise ValueError(f"calibration must be 'sample' or 'nominal', got {self.calibration!r}")
 
     def to_dict(self) -> dict:
         """JSON-ready description (stored in the DataTree attributes)."""
@@ -547,7 +558,19 @@ def _make_model(
         fixed=config.fixed,
         options=config.options,
         n_threads=config.n_threads,
+        calibrated=_calibrated(experiment, config),
     )
+
+
+def _calibrated(experiment: Experiment, config: FitSettings) -> dict[str, Prior]:
+    """Priors of the robot parameters the fit samples (their calibration), by name."""
+    if config.calibration == "nominal":
+        return {}
+    sd = {k: v for k, v in experiment.uncertainty.items() if k in CALIBRATED_KEYS}
+    nominal = dataclasses.asdict(experiment.robot) | {
+        "amplitude_mm": experiment.command.amplitude_mm
+    }
+    return calibration_priors(nominal, sd)
 
 
 def part_models(
@@ -678,6 +701,8 @@ def _warm_positions(
             values = at[pname].values.reshape(-1)[rows]
         else:
             off = model.fixed.get(pname, PARAMETER_ABSENT.get(pname))
+            if off is None and pname in model.calibrated:  # the calibration's value
+                off = model.calibrated[pname].mu
             if off is None:
                 return None
             values = np.full(len(rows), float(off))
@@ -979,12 +1004,27 @@ def _warnings(
 ) -> list[str]:
     out = []
     if experiment is not None and experiment.uncertain:
-        # read and validated (docs/data-format.md), not yet parameters of the fit
-        out.append(
-            "experiment.toml states calibration uncertainties ([robot.uncertainty] or "
-            "[bed] phi_sd); this fit takes the robot and each bed's phi as exact (nominal "
-            "values): its intervals do not include those uncertainties"
-        )
+        sampled = set(_calibrated(experiment, config))
+        exact = [k for k, v in experiment.uncertainty.items() if v > 0 and k not in sampled]
+        if exact:
+            out.append(
+                f"experiment.toml gives an uncertainty of {', '.join(exact)} "
+                "([robot.uncertainty]); this fit takes "
+                + ("them" if len(exact) > 1 else "it")
+                + " as exact (nominal values): its intervals do not include "
+                + ("those uncertainties" if len(exact) > 1 else "that uncertainty")
+                + (
+                    ""
+                    if config.calibration == "nominal"
+                    else " (a fit samples the robot's own parameters and amplitude_mm only)"
+                )
+            )
+        if experiment.phi_sd > 0:
+            out.append(
+                f"experiment.toml gives [bed] phi_sd = {experiment.phi_sd:g}; this fit takes "
+                "each bed's phi as exact (the measured value): its intervals do not include "
+                "that uncertainty"
+            )
     for p in parts:
         out.extend(f"run {p.label}: {w}" for w in p.run.warnings)
         if not p.run.converged and not p.run.warnings:

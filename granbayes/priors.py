@@ -35,7 +35,14 @@ from scipy.stats import truncnorm
 from .errors import InputError
 from .forces import Parameter, parameter, registered_parameters
 
-__all__ = ["Prior", "default_priors", "load_priors", "priors_toml", "NOISE_PARAMETERS"]
+__all__ = [
+    "Prior",
+    "calibration_priors",
+    "default_priors",
+    "load_priors",
+    "priors_toml",
+    "NOISE_PARAMETERS",
+]
 
 _DISTS = ("uniform", "loguniform", "normal", "lognormal")
 
@@ -243,6 +250,75 @@ def default_priors() -> dict[str, Prior]:
         Parameter name to prior (bounds in the parameter's unit).
     """
     return {p.name: _registry_prior(p) for p in registered_parameters()} | _NOISE_DEFAULTS
+
+
+#: Units of the robot parameters a calibration may leave uncertain.
+CALIBRATION_UNITS: dict[str, str] = {
+    "m_motor": "kg",
+    "m_rod": "kg",
+    "m_foot": "kg",
+    "k_spring": "N/m",
+    "c_spring": "N s/m",
+    "foot_radius": "m",
+    "grain_density": "kg/m^3",
+    "amplitude_mm": "mm",
+}
+
+#: Half-width of a calibration prior's support, in standard deviations.
+CALIBRATION_HALF_WIDTH = 6.0
+
+
+def calibration_priors(nominal: Mapping[str, float], sd: Mapping[str, float]) -> dict[str, Prior]:
+    """The calibration of robot parameters as priors: Normal(nominal, sd).
+
+    Each parameter with a standard deviation > 0 gets a normal prior centred on its
+    nominal value, truncated to ``nominal +/- 6 sd`` (and to positive values: every robot
+    parameter is); a parameter whose standard deviation is 0 is known exactly and gets
+    none.
+
+    Parameters
+    ----------
+    nominal : mapping of str to float
+        The values the robot was built or calibrated to (``experiment.toml``'s
+        ``[robot]``, and ``amplitude_mm`` of ``[command]``) [their units].
+    sd : mapping of str to float
+        One standard deviation of each calibration (``[robot.uncertainty]``), same units.
+
+    Returns
+    -------
+    dict of str to Prior
+
+    Raises
+    ------
+    ValueError
+        If a parameter has no nominal value or is not one a calibration can leave uncertain
+        (:data:`CALIBRATION_UNITS`), or a standard deviation is negative or not finite.
+    """
+    out: dict[str, Prior] = {}
+    for name, s in sd.items():
+        if name not in CALIBRATION_UNITS:
+            raise ValueError(
+                f"{name!r} is not a robot parameter a fit can sample; allowed: "
+                f"{', '.join(CALIBRATION_UNITS)}"
+            )
+        if not (math.isfinite(s) and s >= 0.0):
+            raise ValueError(f"the calibration sd of {name!r} must be finite and >= 0, got {s}")
+        if s == 0.0:
+            continue
+        if name not in nominal:
+            raise ValueError(f"no nominal value of {name!r}")
+        mu = float(nominal[name])
+        lower = max(mu - CALIBRATION_HALF_WIDTH * s, 1e-3 * mu)
+        out[name] = Prior(
+            "normal",
+            lower,
+            mu + CALIBRATION_HALF_WIDTH * s,
+            mu=mu,
+            sigma=float(s),
+            unit=CALIBRATION_UNITS[name],
+            why="the lab's calibration: nominal value +/- its standard deviation",
+        )
+    return out
 
 
 def _registry_prior(param: Parameter) -> Prior:

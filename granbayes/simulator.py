@@ -70,6 +70,8 @@ __getattr__ = alias_getattr(__name__, {"SolverOptions": "SolverSettings"})
 
 #: Field order of one input row: robot, phi, then the force-term parameters.
 ROW_FIELDS: tuple[str, ...] = _kernel.ROW_FIELDS
+#: The robot's columns of an integrator row, in order (the first of :data:`ROW_FIELDS`).
+ROBOT_FIELDS: tuple[str, ...] = _kernel.ROBOT_FIELDS
 
 #: The columns of a tracked frame (the last axis of :attr:`TrackedHeights.frames`), in this
 #: order: foot height ``x_f`` above the undisturbed surface [mm], rod displacement
@@ -422,6 +424,30 @@ def build_rows(robot: Robot, phi: ArrayLike, params: Mapping[str, ArrayLike]) ->
     return rows
 
 
+def _program_tables(
+    programs: Sequence[CommandProgram], index: np.ndarray, amplitude_scale: ArrayLike | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kernel's program tables and each row's index into them.
+
+    With ``amplitude_scale`` every row gets its own table: its program's cosine amplitudes
+    and offsets (columns 1 and 2 of the segment table) times the row's factor.
+    """
+    tables = [p.as_table() for p in programs]
+    seg = np.stack([t[0] for t in tables])
+    meta = np.stack([t[1] for t in tables])
+    if amplitude_scale is None:
+        return index, np.ascontiguousarray(seg), np.ascontiguousarray(meta)
+    scale = np.asarray(amplitude_scale, dtype=float)
+    if scale.shape != index.shape:
+        raise ValueError(f"amplitude_scale must have shape {index.shape}, got {scale.shape}")
+    if not np.all(np.isfinite(scale) & (scale > 0)):
+        raise ValueError("amplitude_scale must be finite and > 0")
+    seg = seg[index].copy()
+    seg[:, :, 1:] *= scale[:, None, None]
+    own = np.arange(len(index), dtype=np.int64)
+    return own, np.ascontiguousarray(seg), np.ascontiguousarray(meta[index])
+
+
 def simulate_rows(
     rows: np.ndarray,
     programs: Sequence[CommandProgram],
@@ -429,6 +455,7 @@ def simulate_rows(
     *,
     options: SolverSettings | None = None,
     n_threads: int | None = None,
+    amplitude_scale: ArrayLike | None = None,
 ) -> Heights:
     """Simulate jumps given integrator rows (the lowest-level batched entry point).
 
@@ -444,6 +471,12 @@ def simulate_rows(
         Integrator settings.
     n_threads : int, optional
         numba threads to use (default: numba's current setting).
+    amplitude_scale : array_like of float, shape (n,), optional
+        Per-row factor on the stroke of the row's program (a robot whose true stroke
+        differs from its command's ``amplitude_mm``): every waveform of
+        physics-model.md section 4 is proportional to ``A``, so the program of stroke
+        ``s A`` is the program of ``A`` with its cosine amplitudes and offsets times ``s``
+        (durations unchanged). Default: 1 for every row.
 
     Returns
     -------
@@ -458,9 +491,7 @@ def simulate_rows(
         if command_index is None
         else np.ascontiguousarray(command_index, dtype=np.int64)
     )
-    tables = [p.as_table() for p in programs]
-    seg = np.ascontiguousarray(np.stack([t[0] for t in tables]))
-    meta = np.ascontiguousarray(np.stack([t[1] for t in tables]))
+    index, seg, meta = _program_tables(programs, index, amplitude_scale)
     heights = np.empty(n)
     status = np.empty(n, dtype=np.int8)
     n_steps = np.empty(n, dtype=np.int64)
@@ -831,6 +862,7 @@ def simulate_frames_rows(
     frame_offsets: ArrayLike | None = None,
     options: SolverSettings | None = None,
     n_threads: int | None = None,
+    amplitude_scale: ArrayLike | None = None,
 ) -> TrackedHeights:
     """Simulate tracked jumps: heights, and positions and velocities at the frames (batched).
 
@@ -866,6 +898,8 @@ def simulate_frames_rows(
         Integrator settings.
     n_threads : int, optional
         numba threads to use (default: numba's current setting).
+    amplitude_scale : array_like of float, shape (n,), optional
+        Per-row factor on the stroke of the row's program (:func:`simulate_rows`).
 
     Returns
     -------
@@ -912,9 +946,7 @@ def simulate_frames_rows(
     order = _checked_frame_order(times, offsets, t_end[index])
     if order is not None:
         times = np.ascontiguousarray(times[order])
-    tables = [p.as_table() for p in programs]
-    seg = np.ascontiguousarray(np.stack([t[0] for t in tables]))
-    meta = np.ascontiguousarray(np.stack([t[1] for t in tables]))
+    index, seg, meta = _program_tables(programs, index, amplitude_scale)
     heights = np.empty(n)
     status = np.empty(n, dtype=np.int8)
     n_steps = np.empty(n, dtype=np.int64)

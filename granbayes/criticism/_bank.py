@@ -109,6 +109,7 @@ class FitBank:
             sampler=replace(s, max_steps=s.max_steps * scale),
             n_threads=self.config.n_threads,
             n_prior_draws=0,
+            calibration=self.config.calibration,
         )
 
     def _law_seed(self, key: tuple[str, ...], attempt: int) -> int:

@@ -14,6 +14,7 @@ import enum
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
+from typing import Literal
 
 import numpy as np
 
@@ -95,6 +96,10 @@ class DiagnoseSettings:
         extension can remove).
     n_threads : int, optional
         numba threads for the simulator.
+    calibration : {"sample", "nominal"}
+        Whether every fit samples the robot parameters ``experiment.toml`` gives an
+        uncertainty (:class:`granbayes.fitting.FitSettings`), so that no law is credited
+        with what a miscalibrated robot explains, or takes the nominal robot as exact.
     """
 
     baseline: tuple[str, ...] = ("depth",)
@@ -111,6 +116,7 @@ class DiagnoseSettings:
     screen: bool = True
     screen_margin: float = 2.0
     n_threads: int | None = None
+    calibration: Literal["sample", "nominal"] = "sample"
 
     def candidate_terms(self, current: Sequence[str]) -> list[str]:
         """Terms that may still be added to ``current``.

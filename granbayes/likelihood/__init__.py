@@ -13,10 +13,11 @@ Implementation modules: ``_model`` (the law and evaluation), ``_blocks`` (the in
 from ._blocks import Block, Coordinate, JumpRequest, Law, ObservationSettings, Simulated
 from ._heights import HeightBlock, NoiseFamily, Observations, SigmaMode
 from ._intrusions import IntrusionBlock
-from ._model import Evaluation, JumpModel, PhiMode, evaluate_models
+from ._model import CALIBRATED_KEYS, Evaluation, JumpModel, PhiMode, evaluate_models
 from ._trajectories import TrajectoryBlock
 
 __all__ = [
+    "CALIBRATED_KEYS",
     "Block",
     "Coordinate",
     "Evaluation",

@@ -36,11 +36,22 @@ import numpy as np
 from ..experiment import Experiment
 from ..forces import PARAMETERS, TERMS, terms_of
 from ..priors import Prior, default_priors
-from ..simulator import SolverSettings, build_rows, simulate_frames_rows, simulate_rows
+from ..simulator import (
+    ROBOT_FIELDS,
+    SolverSettings,
+    build_rows,
+    simulate_frames_rows,
+    simulate_rows,
+)
 from ._blocks import Block, Coordinate, Law, Simulated
 from ._heights import HeightBlock, NoiseFamily, Observations, SigmaMode
 
-__all__ = ["Evaluation", "JumpModel", "PhiMode", "evaluate_models"]
+__all__ = ["CALIBRATED_KEYS", "Evaluation", "JumpModel", "PhiMode", "evaluate_models"]
+
+#: Robot parameters a model can sample from their calibration (``calibrated``): the robot's
+#: own (one column each of the integrator rows) and the stroke ``amplitude_mm`` (a factor on
+#: every command's waveform, which is proportional to it).
+CALIBRATED_KEYS: tuple[str, ...] = (*ROBOT_FIELDS, "amplitude_mm")
 
 #: Parametrisation of a model across volume fractions (module docstring).
 PhiMode = Literal["shared", "quadratic"]
@@ -76,6 +87,13 @@ class JumpModel:
         Integrator settings.
     n_threads : int, optional
         numba threads for the simulator.
+    calibrated : mapping of str to Prior, optional
+        Robot parameters (``[robot]`` keys, and ``amplitude_mm``, the stroke) known only
+        to a calibration: each becomes one sampled coordinate, shared by every volume
+        fraction, command and kind of measurement of the model, with its calibration as
+        prior (:func:`granbayes.priors.calibration_priors`). The rest of the robot stays
+        at the experiment's values; without ``calibrated`` the model is the fixed-robot
+        model, coordinate for coordinate.
     """
 
     def __init__(
@@ -92,6 +110,7 @@ class JumpModel:
         fixed: Mapping[str, float] | None = None,
         options: SolverSettings | None = None,
         n_threads: int | None = None,
+        calibrated: Mapping[str, Prior] | None = None,
     ) -> None:
         if phi_mode not in ("shared", "quadratic"):
             raise ValueError(f"phi_mode must be 'shared' or 'quadratic', got {phi_mode!r}")
@@ -118,7 +137,14 @@ class JumpModel:
         self._phis = np.unique(np.concatenate([b.phis for b in blocks]))
         self._x_phis = self._phis - experiment.phi_c
         self._law = self._law_coordinates()
-        self._coords = list(self._law)
+        self.calibrated = dict(calibrated or {})
+        unknown = set(self.calibrated) - set(CALIBRATED_KEYS)
+        if unknown:
+            raise ValueError(
+                f"calibrated parameters must be among {CALIBRATED_KEYS}, got {sorted(unknown)}"
+            )
+        self._calibration = [Coordinate(k, k, p) for k, p in self.calibrated.items()]
+        self._coords = list(self._law) + self._calibration
         self._slices: list[slice] = []
         for block in blocks:
             own = block.coordinates(self.priors, self._phis)
@@ -330,9 +356,45 @@ class JumpModel:
         u = np.atleast_2d(u)
         phis = self._phis if phis is None else np.asarray(phis, float)
         vals = self.law_values(u, phis)
+        for name, values in self.calibration_values(u).items():
+            vals[name] = np.repeat(values[:, None], len(phis), axis=1)
         for i, block in enumerate(self.blocks):
             vals.update(block.values(self.block_coordinates(u, i), phis))
         return vals
+
+    def calibration_values(self, u: np.ndarray) -> dict[str, np.ndarray]:
+        """The calibrated robot parameters of walkers ``u`` [their units]: shape (n,) each.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Walker positions.
+
+        Returns
+        -------
+        dict of str to ndarray
+            Empty for a model of a robot known exactly.
+        """
+        u = np.atleast_2d(u)
+        start = self.n_law
+        return {c.name: c.prior.to_value(u[:, start + j]) for j, c in enumerate(self._calibration)}
+
+    def amplitude_scale(self, u: np.ndarray) -> np.ndarray | None:
+        """The stroke of walkers ``u`` over the command's: shape (n,), or ``None`` (exact).
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Walker positions.
+
+        Returns
+        -------
+        ndarray or None
+        """
+        if "amplitude_mm" not in self.calibrated:
+            return None
+        stroke = self.calibration_values(u)["amplitude_mm"]
+        return stroke / self.experiment.command.amplitude_mm
 
     # ------------------------------------------------------------------------------------
     def rows_for(self, u: np.ndarray, phi: np.ndarray) -> np.ndarray:
@@ -361,7 +423,11 @@ class JumpModel:
                 params[p.name] = np.broadcast_to(values[p.name], (n, m)).reshape(-1)
             elif p.name in self.fixed:
                 params[p.name] = np.full(n * m, float(self.fixed[p.name]))
-        return build_rows(self.experiment.robot, np.broadcast_to(phi, (n, m)).reshape(-1), params)
+        rows = build_rows(self.experiment.robot, np.broadcast_to(phi, (n, m)).reshape(-1), params)
+        for name, value in self.calibration_values(u).items():
+            if name in ROBOT_FIELDS:
+                rows[:, ROBOT_FIELDS.index(name)] = np.repeat(value, m)
+        return rows
 
     def simulation_rows(
         self, u: np.ndarray, observations: Observations | None = None
@@ -410,8 +476,14 @@ class JumpModel:
         u = np.atleast_2d(u)
         obs = observations or self.obs
         rows, index = self.simulation_rows(u, obs)
+        scale = self.amplitude_scale(u)
         res = simulate_rows(
-            rows, obs.programs, index, options=self.options, n_threads=self.n_threads
+            rows,
+            obs.programs,
+            index,
+            options=self.options,
+            n_threads=self.n_threads,
+            amplitude_scale=None if scale is None else np.repeat(scale, len(obs.config_phi)),
         )
         heights = res.height_mm.reshape(u.shape[0], -1)
         return heights, np.all(res.ok.reshape(heights.shape), axis=1)
@@ -708,7 +780,9 @@ def _simulate(jobs: Sequence[tuple[JumpModel, np.ndarray, Sequence]]) -> list[li
         for i, req in enumerate(requests):
             if req is None or len(u) == 0:
                 continue
-            entry = (j, i, len(u), req, model.rows_for(u, req.phi))
+            scale = model.amplitude_scale(u)
+            scale = np.ones(len(u)) if scale is None else scale
+            entry = (j, i, len(u), req, model.rows_for(u, req.phi), np.repeat(scale, req.n_jumps))
             (plain if req.frame_times_s is None else tracked).append(entry)
     out: list[list] = [[None] * len(r) for _, _, r in jobs]
     # heights-only jumps and tracked jumps are two batched calls: the frame simulator
@@ -716,14 +790,17 @@ def _simulate(jobs: Sequence[tuple[JumpModel, np.ndarray, Sequence]]) -> list[li
     for entries, with_frames in ((plain, False), (tracked, True)):
         if not entries:
             continue
-        rows, index, programs, times, counts = [], [], [], [], []
-        for _, _, n, req, r in entries:
+        rows, index, programs, times, counts, scales = [], [], [], [], [], []
+        for _, _, n, req, r, scale in entries:
             rows.append(r)
+            scales.append(scale)
             index.append(np.tile(np.arange(req.n_jumps), n) + len(programs))
             programs.extend(req.programs)
             if with_frames:
                 times.append(np.tile(np.concatenate(req.frame_times_s), n))
                 counts.append(np.tile([len(t) for t in req.frame_times_s], n))
+        scale = np.concatenate(scales)
+        scale = None if np.all(scale == 1.0) else scale  # a robot known exactly: as before
         if with_frames:
             res = simulate_frames_rows(
                 np.concatenate(rows),
@@ -733,6 +810,7 @@ def _simulate(jobs: Sequence[tuple[JumpModel, np.ndarray, Sequence]]) -> list[li
                 np.concatenate([[0], np.cumsum(np.concatenate(counts))]),
                 options=options,
                 n_threads=n_threads,
+                amplitude_scale=scale,
             )
             frames = res.frames_flat
         else:
@@ -742,9 +820,10 @@ def _simulate(jobs: Sequence[tuple[JumpModel, np.ndarray, Sequence]]) -> list[li
                 np.concatenate(index),
                 options=options,
                 n_threads=n_threads,
+                amplitude_scale=scale,
             )
         start = start_f = 0
-        for j, i, n, req, _ in entries:
+        for j, i, n, req, _, _ in entries:
             m = req.n_jumps
             stop = start + n * m
             sim_frames = None

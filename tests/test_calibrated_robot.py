@@ -1,0 +1,172 @@
+"""Robot parameters known only to a calibration: sampled with the calibration as prior.
+
+Data here are SYNTHETIC (the test kit's oracle, :func:`granbayes.testing.synthetic_jumps`).
+The identities: a sampled robot parameter at value ``v`` is the fixed-robot model of a
+robot whose parameter is ``v``, bit for bit; a stroke factor ``s`` is the program of the
+stroke ``s A``, bit for bit; a fit without uncertainties is the fit it was before they
+existed, bit for bit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from granbayes import COMMAND_NAMES, Experiment, build_command
+from granbayes.experiment import load_experiment
+from granbayes.fitting import FitSettings, fit, part_models
+from granbayes.likelihood import JumpModel, Observations
+from granbayes.priors import Prior, calibration_priors, default_priors
+from granbayes.sampler import SamplerSettings
+from granbayes.simulator import build_rows, simulate_frames_rows, simulate_rows
+from granbayes.synthetic import write_experiment
+from granbayes.testing import synthetic_jumps
+
+TINY = SamplerSettings(n_walkers=8, n_ensembles=2, check_every=50, max_steps=100, n_draws=30)
+
+
+def test_calibration_priors_are_normal_about_the_nominal_values() -> None:
+    priors = calibration_priors(
+        {"k_spring": 5760.0, "m_motor": 1.0, "amplitude_mm": 20.0},
+        {"k_spring": 150.0, "m_motor": 0.0, "amplitude_mm": 0.5},
+    )
+    assert set(priors) == {"k_spring", "amplitude_mm"}  # sd 0: known exactly, not sampled
+    k = priors["k_spring"]
+    assert (k.dist, k.mu, k.sigma, k.unit) == ("normal", 5760.0, 150.0, "N/m")
+    assert (k.lower, k.upper) == (5760.0 - 900.0, 5760.0 + 900.0)
+    # a wide calibration stays positive
+    wide = calibration_priors({"m_foot": 0.1}, {"m_foot": 0.05})["m_foot"]
+    assert wide.lower > 0.0
+
+
+@pytest.mark.parametrize(
+    ("sd", "fragment"),
+    [
+        ({"k": 100.0}, "not a robot parameter"),
+        ({"freq_hz": 0.1}, "not a robot parameter"),
+        ({"k_spring": -1.0}, "finite and >= 0"),
+        ({"k_spring": float("nan")}, "finite and >= 0"),
+    ],
+)
+def test_bad_calibrations_are_refused(sd: dict, fragment: str) -> None:
+    with pytest.raises(ValueError, match=fragment):
+        calibration_priors({"k_spring": 5760.0, "k": 1.0, "freq_hz": 10.0}, sd)
+
+
+@pytest.mark.parametrize("command", COMMAND_NAMES)
+def test_a_stroke_factor_is_the_program_of_that_stroke(command: str) -> None:
+    """Every waveform is proportional to the stroke: ``s`` times A's program is s A's."""
+    exp = Experiment()
+    true = dataclasses.replace(exp.command, amplitude_mm=exp.command.amplitude_mm * 0.97)
+    rows = build_rows(exp.robot, [0.59, 0.612, 0.63], {"k": 3000.0, "c_d": 20.0})
+    scale = np.full(3, 0.97)
+    want = simulate_rows(rows, [build_command(command, true)])
+    got = simulate_rows(rows, [build_command(command, exp.command)], amplitude_scale=scale)
+    np.testing.assert_array_equal(got.height_mm, want.height_mm)
+    times = np.linspace(-0.01, 0.4, 30)
+    want_f = simulate_frames_rows(rows, [build_command(command, true)], None, times)
+    got_f = simulate_frames_rows(
+        rows, [build_command(command, exp.command)], None, times, amplitude_scale=scale
+    )
+    np.testing.assert_array_equal(got_f.frames_flat, want_f.frames_flat)
+    with pytest.raises(ValueError, match="amplitude_scale"):
+        simulate_rows(rows, [build_command(command)], amplitude_scale=np.ones(2))
+
+
+@pytest.fixture(scope="module")
+def table():
+    return synthetic_jumps(
+        {"k": 3000.0, "c_d": 20.0},
+        2.0,
+        seed=3,
+        phis=(0.602, 0.622),
+        trials=2,
+        settings_columns=True,
+    )
+
+
+def test_a_sampled_robot_parameter_is_the_robot_it_names(table) -> None:
+    """Walker value v of ``k_spring``/``m_motor``/``amplitude_mm`` = the robot with v."""
+    exp = Experiment()
+    calibrated = calibration_priors(
+        {"k_spring": exp.robot.k_spring, "m_motor": exp.robot.m_motor, "amplitude_mm": 20.0},
+        {"k_spring": 150.0, "m_motor": 0.02, "amplitude_mm": 0.5},
+    )
+    model = JumpModel(Observations.from_table(table), exp, ("depth", "drag"), calibrated=calibrated)
+    names = model.coordinate_names
+    assert names[: model.n_law] == ["k", "c_d"]
+    assert names[model.n_law : model.n_law + 3] == ["k_spring", "m_motor", "amplitude_mm"]
+    true = {"k_spring": 5900.0, "m_motor": 1.03, "amplitude_mm": 19.5}
+    u = np.zeros((2, model.ndim))
+    u[:, :2] = [[np.log(3000.0), np.sqrt(20.0)], [np.log(2500.0), np.sqrt(30.0)]]
+    for name, value in true.items():
+        u[:, names.index(name)] = value
+    u[:, model.n_law + 3 :] = np.log(2.0)  # the scatter
+    lp, ll = model(u)
+    assert np.all(np.isfinite(lp))
+
+    robot = dataclasses.replace(exp.robot, k_spring=5900.0, m_motor=1.03)
+    fixed_exp = dataclasses.replace(exp, robot=robot)
+    fixed_table = table.assign(amplitude_mm=19.5)
+    fixed = JumpModel(Observations.from_table(fixed_table), fixed_exp, ("depth", "drag"))
+    keep = [i for i, n in enumerate(names) if n not in true]
+    lp_fixed, ll_fixed = fixed(u[:, keep])
+    np.testing.assert_array_equal(ll, ll_fixed)
+    # the calibration's prior is the only difference of the log-posteriors
+    prior = sum(calibrated[n].logpdf_u(u[:, names.index(n)]) for n in true)
+    np.testing.assert_allclose(lp - lp_fixed, prior, rtol=1e-12)
+    values = model.parameter_values(u)
+    np.testing.assert_array_equal(values["k_spring"], np.full((2, 2), 5900.0))
+
+
+def test_unknown_calibrated_keys_are_refused(table) -> None:
+    with pytest.raises(ValueError, match="calibrated parameters"):
+        JumpModel(
+            Observations.from_table(table),
+            Experiment(),
+            ("depth",),
+            calibrated={"k": Prior("normal", 1.0, 3.0, mu=2.0, sigma=0.5)},
+        )
+
+
+def _folder(tmp_path, table, uncertainty: str):
+    write_experiment(tmp_path, table, Experiment())
+    toml = tmp_path / "experiment.toml"
+    toml.write_text(toml.read_text() + uncertainty)
+    return load_experiment(tmp_path)
+
+
+def test_a_robot_known_exactly_gives_the_same_fit_bit_for_bit(tmp_path, table) -> None:
+    """No uncertainty, sd 0 and ``calibration="nominal"`` are the fixed-robot fit."""
+    config = FitSettings(terms=("depth",), sampler=TINY, n_threads=1, n_prior_draws=0)
+    plain = fit(Experiment(), table, config, seed=4).datatree["posterior"]
+    exact = _folder(tmp_path / "a", table, "\n[robot.uncertainty]\nk_spring = 0.0\n")
+    for experiment, cfg in (
+        (exact, config),
+        (
+            _folder(tmp_path / "b", table, "\n[robot.uncertainty]\nk_spring = 150.0\n"),
+            dataclasses.replace(config, calibration="nominal"),
+        ),
+    ):
+        other = fit(experiment, table, cfg, seed=4).datatree["posterior"]
+        assert set(other.data_vars) == set(plain.data_vars)
+        for name in plain.data_vars:
+            np.testing.assert_array_equal(other[name].values, plain[name].values)
+
+
+def test_a_calibrated_fit_reports_the_robot_parameters(tmp_path, table) -> None:
+    exp = _folder(tmp_path, table, "\n[robot.uncertainty]\nk_spring = 150.0\namplitude_mm = 0.5\n")
+    config = FitSettings(terms=("depth",), sampler=TINY, n_threads=1, n_prior_draws=20)
+    res = fit(exp, table, config, seed=5)
+    post = res.datatree["posterior"]
+    assert post["k_spring"].dims == ("chain", "draw", "phi")
+    assert post["k_spring"].attrs.get("units", "N/m") == "N/m"
+    assert np.all(np.isfinite(post["amplitude_mm"].values))
+    # the prior group draws them from their calibration
+    prior = res.datatree["prior"]
+    assert abs(float(prior["k_spring"].mean()) - exp.robot.k_spring) < 3 * 150.0
+    ((_, model, _), *_) = part_models(exp, table, config, default_priors())
+    assert "k_spring" in model.calibrated
+    assert not any("k_spring" in w for w in res.warnings)  # sampled, not taken as exact
