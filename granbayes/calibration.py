@@ -605,7 +605,12 @@ MISCALIBRATION: dict[str, float] = {"k_spring": 172.8, "m_motor": 0.02, "amplitu
 
 
 def diagnose_miscalibrated(
-    calibration: str, *, seed: int, trials: int = 4, config: DiagnoseSettings | None = None
+    calibration: str,
+    *,
+    seed: int,
+    trials: int = 4,
+    offsets_sd: Mapping[str, float] | None = None,
+    config: DiagnoseSettings | None = None,
 ) -> list[dict[str, Any]]:
     """Campaign task: ``diagnose`` on null data from a robot known only to its calibration.
 
@@ -626,6 +631,9 @@ def diagnose_miscalibrated(
         ``diagnose`` gets a spawned one.
     trials : int
         Jumps per cell.
+    offsets_sd : mapping of str to float, optional
+        Fixed true values instead of draws: each key of :data:`MISCALIBRATION` this far
+        from nominal [calibration sds] (the others drawn).
     config : DiagnoseSettings, optional
         The rule and sampler settings (its ``calibration`` is replaced).
 
@@ -657,6 +665,7 @@ def diagnose_miscalibrated(
         tracked_trials=0,
         intrusion_speeds_mm_s=(),
         robot_sd=MISCALIBRATION,
+        robot_true=_offset_robot(offsets_sd or {}),
     )
     lab = synthetic_lab_data(
         lambda phi: {"k": k0 + k1 * (phi - _PHI_C) + k2 * (phi - _PHI_C) ** 2},
@@ -699,6 +708,16 @@ def diagnose_miscalibrated(
             "wall_s": time.perf_counter() - t0,
         }
     ]
+
+
+def _offset_robot(offsets_sd: Mapping[str, float]) -> dict[str, float]:
+    """True robot values ``nominal + offset x sd`` of :data:`MISCALIBRATION`'s keys."""
+    unknown = set(offsets_sd) - set(MISCALIBRATION)
+    if unknown:
+        raise ValueError(f"offsets of {sorted(unknown)}: only {sorted(MISCALIBRATION)}")
+    exp = Experiment()
+    nominal = dataclasses.asdict(exp.robot) | {"amplitude_mm": exp.command.amplitude_mm}
+    return {k: nominal[k] + z * MISCALIBRATION[k] for k, z in offsets_sd.items()}
 
 
 def _claim(rec: DiagnosisRecord) -> str:

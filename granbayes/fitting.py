@@ -7,6 +7,22 @@
 * ``phi_mode="quadratic"``: every coefficient a quadratic in ``phi - phi_c`` (the thesis's
   ``k(phi)``), fitted jointly over all volume fractions.
 
+A robot known only to its calibration (``experiment.toml``'s ``[robot.uncertainty]``):
+with ``calibration="sample"`` (default) each uncertain robot parameter (the robot's own and
+the stroke ``amplitude_mm``) is one more coordinate of every sampler run, shared by its
+commands and kinds of measurement, with Normal(nominal, sd) as prior. How it is sampled,
+and why: in ``quadratic`` mode the run already holds every volume fraction, so the robot is
+shared by all of them. In ``per_phi`` mode each volume fraction's run integrates over its
+own copy, the conservative marginal (a volume fraction's law never borrows what the others
+say about the spring). One ensemble over every volume fraction's coordinates plus the
+robot's (~15-20 dimensions) would pool them, but every walker would simulate every jump
+and the ensembles need about ``4 x ndim`` walkers and longer chains (the quadratic-mode
+fits are built that way and are the slowest this package runs); blocks per volume
+fraction given the shared parameters (Metropolis-within-Gibbs over ensembles) would pool
+them at about the per-run cost and are the next step. The per-run copies' cost against the
+fixed-robot fit is measured in ``benchmarks/results/calibrated_fit.md`` (walkers ``4 x
+ndim`` and about twice the steps).
+
 :func:`compare_commands` answers the thesis's question "one force law for every jump?":
 per volume fraction, the shared law against separate laws per command, by PSIS-LOO.
 
@@ -954,7 +970,9 @@ def _common_shape(parts: list[FitPart]) -> tuple[int, int]:
     return n_chain, n_draw
 
 
-def _variable_attrs(names: tuple[str, ...]) -> dict[str, dict[str, str]]:
+def _variable_attrs(
+    names: tuple[str, ...], calibrated: Mapping[str, Prior] | None = None
+) -> dict[str, dict[str, str]]:
     """Units and descriptions of the posterior variables.
 
     Parameters
@@ -962,6 +980,8 @@ def _variable_attrs(names: tuple[str, ...]) -> dict[str, dict[str, str]]:
     names : tuple of str
         The fitted force-term parameters; their ``units`` and ``long_name`` are read from
         the force-term registry (:data:`granbayes.forces.TERMS`) at each call.
+    calibrated : mapping of str to Prior, optional
+        The robot parameters sampled with their calibration as prior.
 
     Returns
     -------
@@ -972,6 +992,11 @@ def _variable_attrs(names: tuple[str, ...]) -> dict[str, dict[str, str]]:
     from .forces import parameter  # at call time: a term registered at run time is seen
 
     out = {n: {"units": parameter(n).unit, "long_name": parameter(n).description} for n in names}
+    for n, prior in (calibrated or {}).items():
+        out[n] = {
+            "units": prior.unit,
+            "long_name": f"robot's {n} (calibration {prior.mu:g} +/- {prior.sigma:g} {prior.unit})",
+        }
     out["sigma_mm"] = {"units": "mm", "long_name": "trial-to-trial scatter of jump heights"}
     out["height_mm"] = {"units": "mm", "long_name": "jump height"}
     out["height_sim_mm"] = {"units": "mm", "long_name": "simulated jump height (no noise)"}
@@ -1286,18 +1311,25 @@ def _fit_attrs(
     data_source: str,
 ) -> dict:
     """The DataTree attributes of a fit: provenance, settings, priors and run diagnostics."""
+    calibrated = parts[0].model.calibrated
     return {
         "seed": int(seed),
         # package versions and the machine: what bit-identical results require to match
         **environment(),
         "config": config.to_dict(),
-        "priors": {k: dataclasses.asdict(v) for k, v in priors.items()},
+        "priors": {k: dataclasses.asdict(v) for k, v in {**priors, **calibrated}.items()},
+        # robot parameters sampled with their calibration as prior (FitSettings.calibration)
+        "calibrated": {
+            k: {"nominal": p.mu, "sd": p.sigma, "unit": p.unit} for k, p in calibrated.items()
+        },
         "data_sha256": data_hash(experiment, observed),
         "data_source": data_source,
         "experiment": {
             "robot": dataclasses.asdict(experiment.robot),
             "command": dataclasses.asdict(experiment.command),
             "phi_c": experiment.phi_c,
+            "uncertainty": experiment.uncertainty,
+            "phi_sd": experiment.phi_sd,
         },
         "parameters": list(parts[0].model.parameters),
         "runs": [_run_record(p) for p in parts],
@@ -1358,7 +1390,7 @@ def _assemble(
         prior=prior,
         prior_predictive=prior_pred,
         log_prior={"log_prior": draws.log_prior},
-        var_attrs=_variable_attrs(parts[0].model.parameters),
+        var_attrs=_variable_attrs(parts[0].model.parameters, parts[0].model.calibrated),
         thinned=thinned,
     )
     return FitResult(dt, parts, config, seed, _warnings(parts, config, experiment))

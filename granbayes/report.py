@@ -115,7 +115,9 @@ def write_fit_report(
     config = json.loads(dt.attrs["config"])
     force_names = list(json.loads(dt.attrs["parameters"]))
     # the observation models' parameters of the kinds the fit holds
-    names = [*force_names, *(n for n in _NOISE_NAMES if n in dt.posterior)]
+    # the robot parameters sampled with their calibration as prior, after the force law's
+    calibrated = list(json.loads(dt.attrs.get("calibrated", "{}")))
+    names = [*force_names, *calibrated, *(n for n in _NOISE_NAMES if n in dt.posterior)]
     fit_warnings = json.loads(dt.attrs.get("warnings", "[]"))
     summary = stats.summary_table(dt, var_names=names).reset_index(names="parameter")
     if truth:

@@ -129,6 +129,8 @@ class SavedFit:
                 robot=Robot(**exp["robot"]),
                 command=CommandSettings(**exp["command"]),
                 phi_c=float(exp["phi_c"]),
+                calibration_sd=tuple(exp.get("uncertainty", {}).items()),
+                phi_sd=float(exp.get("phi_sd", 0.0)),
                 source=str(where) if where is not None else None,
             )
         except (TypeError, KeyError, ValueError) as exc:

@@ -12,13 +12,18 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from granbayes import COMMAND_NAMES, Experiment, build_command
 from granbayes.experiment import load_experiment
 from granbayes.fitting import FitSettings, fit, part_models
+from granbayes.prediction import predict
+from granbayes.saved import load_fit
+from granbayes.sbc import draw_replicate
 from granbayes.likelihood import JumpModel, Observations
 from granbayes.priors import Prior, calibration_priors, default_priors
+from granbayes.report import write_fit_report
 from granbayes.sampler import SamplerSettings
 from granbayes.simulator import build_rows, simulate_frames_rows, simulate_rows
 from granbayes.synthetic import write_experiment
@@ -170,3 +175,47 @@ def test_a_calibrated_fit_reports_the_robot_parameters(tmp_path, table) -> None:
     ((_, model, _), *_) = part_models(exp, table, config, default_priors())
     assert "k_spring" in model.calibrated
     assert not any("k_spring" in w for w in res.warnings)  # sampled, not taken as exact
+    # the report lists them, with what the jumps say about them against their calibration
+    out = tmp_path / "report"
+    out.mkdir()
+    write_fit_report(res.datatree, out, diagnostics_plots=False)
+    summary = (out / "summary.md").read_text()
+    assert "k_spring" in summary and "amplitude_mm" in summary
+    ident = pd.read_csv(out / "identifiability.csv")
+    assert {"k_spring", "amplitude_mm"} <= set(ident["parameter"])
+    # a saved fit keeps the calibration, so its models (and predictions) sample the robot
+    saved = load_fit(out / "posterior.nc")
+    assert saved.experiment.uncertainty == exp.uncertainty
+    assert "k_spring" in saved.model(saved.labels[0]).coordinate_names
+    pred = predict(saved, "single", 0.602, n_draws=20, rng=1)
+    assert np.all(np.isfinite(pred.height_sim_mm))
+
+
+def test_sbc_draws_the_robot_from_its_calibration_whatever_the_fit_does(table) -> None:
+    """The replicate's robot is drawn; ``calibration`` says only how the fit treats it."""
+    exp = dataclasses.replace(Experiment(), calibration_sd=(("k_spring", 150.0),))
+    design = table.drop(columns=["source"], errors="ignore")
+    got = {}
+    for mode in ("sample", "nominal"):
+        config = FitSettings(terms=("depth",), calibration=mode)
+        heights, truths = draw_replicate(
+            exp, design, config, default_priors(), np.random.default_rng(7)
+        )
+        got[mode] = (heights["height_mm"].to_numpy(), truths)
+    np.testing.assert_array_equal(got["sample"][0], got["nominal"][0])
+    for phi, truth in got["nominal"][1].items():
+        assert truth["k_spring"] != exp.robot.k_spring
+        assert abs(truth["k_spring"] - exp.robot.k_spring) < 6 * 150.0
+
+
+def test_what_is_not_sampled_is_said_to_be_taken_as_exact() -> None:
+    from granbayes.fitting import _warnings
+
+    exp = dataclasses.replace(
+        Experiment(), calibration_sd=(("k_spring", 150.0), ("freq_hz", 0.1)), phi_sd=0.002
+    )
+    sampled = " ".join(_warnings([], FitSettings(), exp))
+    assert "freq_hz" in sampled and "phi_sd = 0.002" in sampled and "k_spring" not in sampled
+    nominal = " ".join(_warnings([], FitSettings(calibration="nominal"), exp))
+    assert "k_spring, freq_hz" in nominal
+    assert _warnings([], FitSettings(), Experiment()) == []
