@@ -266,7 +266,8 @@ def _summary_markdown(summary: Mapping[str, Any]) -> str:
         f"Data: SYNTHETIC replicates of the design of `{summary['data_source']}`; "
         f"{summary['n_replicates_ok']} of {summary['n_replicates']} replicates finished, "
         f"master seed {summary['seed']}, ranks among {summary['n_rank_draws']} posterior "
-        "draws. Calibrated: uniformity p-values not small, coverage near nominal.",
+        "draws. A calibrated fit gives uniformity p-values that are not small and "
+        "coverage near nominal; read the table against that.",
         "",
         "| parameter | phi | n | p chi-square | p pot_c | 50% coverage | 90% coverage |",
         "|---|---|---|---|---|---|---|",
