@@ -18,13 +18,13 @@ import pytest
 from granbayes import COMMAND_NAMES, Experiment, build_command
 from granbayes.experiment import load_experiment
 from granbayes.fitting import FitSettings, fit, part_models
-from granbayes.prediction import predict
-from granbayes.saved import load_fit
-from granbayes.sbc import draw_replicate
 from granbayes.likelihood import JumpModel, Observations
+from granbayes.prediction import predict
 from granbayes.priors import Prior, calibration_priors, default_priors
 from granbayes.report import write_fit_report
 from granbayes.sampler import SamplerSettings
+from granbayes.saved import load_fit
+from granbayes.sbc import draw_replicate
 from granbayes.simulator import build_rows, simulate_frames_rows, simulate_rows
 from granbayes.synthetic import write_experiment
 from granbayes.testing import synthetic_jumps
@@ -203,7 +203,7 @@ def test_sbc_draws_the_robot_from_its_calibration_whatever_the_fit_does(table) -
         )
         got[mode] = (heights["height_mm"].to_numpy(), truths)
     np.testing.assert_array_equal(got["sample"][0], got["nominal"][0])
-    for phi, truth in got["nominal"][1].items():
+    for truth in got["nominal"][1].values():
         assert truth["k_spring"] != exp.robot.k_spring
         assert abs(truth["k_spring"] - exp.robot.k_spring) < 6 * 150.0
 

@@ -165,12 +165,15 @@ def fake_fit(
         **environment(),
         "config": config.to_dict(),
         "priors": {k: dataclasses.asdict(v) for k, v in priors.items()},
+        "calibrated": {},  # a robot known exactly
         "data_sha256": data_hash(exp, table),
         "data_source": "granbayes.testing.fake_fit (SYNTHETIC)",
         "experiment": {
             "robot": dataclasses.asdict(exp.robot),
             "command": dataclasses.asdict(exp.command),
             "phi_c": exp.phi_c,
+            "uncertainty": exp.uncertainty,
+            "phi_sd": exp.phi_sd,
         },
         "parameters": list(names),
         "runs": [
