@@ -52,15 +52,25 @@ def main(argv: list[str] | None = None) -> int:
         help="tabulate the tasks finished so far in OUT.partial/tasks without running any "
         "(a stopped study; the table says how many ran)",
     )
+    parser.add_argument(
+        "--modes",
+        default=",".join(MODES),
+        help="comma-separated ways to diagnose (default nominal,sample)",
+    )
     args = parser.parse_args(argv)
+    modes = tuple(m for m in args.modes.split(",") if m)
+    if not modes or set(modes) - set(MODES):
+        parser.error(f"--modes {args.modes}: choose from {', '.join(MODES)}")
     offsets = ISSUE_ROBOT if args.issue_robot else None
     name = "miscalibrated_null_issue_robot" if args.issue_robot else "miscalibrated_null"
     tasks = [
         Task(f"{mode}-{s:03d}", diagnose_miscalibrated, (mode,), {"offsets_sd": offsets}, seed=s)
         for s in range(args.seeds)
-        for mode in MODES
+        for mode in modes
     ]
     description = {"kind": "miscalibrated null", "calibration_sd": MISCALIBRATION}
+    if modes != MODES:
+        description["modes"] = list(modes)
     if offsets:
         description["offsets_sd"] = offsets
     if args.finished_only:
@@ -88,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     (HERE / "results").mkdir(exist_ok=True)
     table.to_csv(HERE / "results" / f"{name}.csv", index=False)
     rates = []
-    for mode in MODES:
+    for mode in modes:
         rows = table[table["calibration"] == mode]
         k = int((rows["verdict"] != "baseline_adequate").sum())
         lo, hi = clopper_pearson(k, len(rows))
@@ -109,8 +119,9 @@ def main(argv: list[str] | None = None) -> int:
         "",
         *([note, ""] if note else []),
         f"Data sets of seeds {sorted(set(table['seed']))}, each diagnosed "
-        "twice (where finished); generator `granbayes.calibration.diagnose_miscalibrated` "
-        "(the oracle of `granbayes.testing`), calibration sds "
+        f"with {', '.join(modes)} (where finished); generator "
+        "`granbayes.calibration.diagnose_miscalibrated` (the oracle of `granbayes.testing`), "
+        "calibration sds "
         + ", ".join(f"{k} {v:g}" for k, v in MISCALIBRATION.items())
         + "; truth: a depth-only k(phi). `nominal`: the robot taken as exact; `sample`: "
         "the three parameters sampled with their calibration as prior. A verdict other "
