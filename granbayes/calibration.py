@@ -682,12 +682,7 @@ def diagnose_miscalibrated(
             experiment, data, config, seed=diag_seed, data_source=lab.source, log=lambda *a: None
         )
     rec = d.record
-    true_robot = dataclasses.asdict(lab.true_experiment.robot) | {
-        "amplitude_mm": lab.true_experiment.command.amplitude_mm
-    }
-    nominal = dataclasses.asdict(lab.experiment.robot) | {
-        "amplitude_mm": lab.experiment.command.amplitude_mm
-    }
+    true_robot, nominal = lab.true_experiment.robot_values, lab.experiment.robot_values
     return [
         {
             "seed": int(seed),
@@ -715,8 +710,7 @@ def _offset_robot(offsets_sd: Mapping[str, float]) -> dict[str, float]:
     unknown = set(offsets_sd) - set(MISCALIBRATION)
     if unknown:
         raise ValueError(f"offsets of {sorted(unknown)}: only {sorted(MISCALIBRATION)}")
-    exp = Experiment()
-    nominal = dataclasses.asdict(exp.robot) | {"amplitude_mm": exp.command.amplitude_mm}
+    nominal = Experiment().robot_values
     return {k: nominal[k] + z * MISCALIBRATION[k] for k, z in offsets_sd.items()}
 
 

@@ -119,6 +119,14 @@ class Experiment:
         return dict(self.calibration_sd)
 
     @property
+    def robot_values(self) -> dict[str, float]:
+        """The robot's parameters and its stroke ``amplitude_mm`` [TOML units].
+
+        The values a calibration may leave uncertain (``[robot.uncertainty]``), by key.
+        """
+        return {**dataclasses.asdict(self.robot), "amplitude_mm": self.command.amplitude_mm}
+
+    @property
     def uncertain(self) -> bool:
         """Whether the experiment states calibration or packing uncertainties."""
         return bool(self.uncertainty) or self.phi_sd > 0.0

@@ -583,10 +583,7 @@ def _calibrated(experiment: Experiment, config: FitSettings) -> dict[str, Prior]
     if config.calibration == "nominal":
         return {}
     sd = {k: v for k, v in experiment.uncertainty.items() if k in CALIBRATED_KEYS}
-    nominal = dataclasses.asdict(experiment.robot) | {
-        "amplitude_mm": experiment.command.amplitude_mm
-    }
-    return calibration_priors(nominal, sd)
+    return calibration_priors(experiment.robot_values, sd)
 
 
 def part_models(

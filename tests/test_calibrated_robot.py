@@ -219,3 +219,11 @@ def test_what_is_not_sampled_is_said_to_be_taken_as_exact() -> None:
     nominal = " ".join(_warnings([], FitSettings(calibration="nominal"), exp))
     assert "k_spring, freq_hz" in nominal
     assert _warnings([], FitSettings(), Experiment()) == []
+
+
+def test_one_set_of_calibrated_keys() -> None:
+    """The model's sampled keys, the priors' units and the experiment's values agree."""
+    from granbayes.likelihood import CALIBRATED_KEYS
+    from granbayes.priors import CALIBRATION_UNITS
+
+    assert set(CALIBRATION_UNITS) == set(CALIBRATED_KEYS) == set(Experiment().robot_values)

@@ -780,9 +780,9 @@ def _simulate(jobs: Sequence[tuple[JumpModel, np.ndarray, Sequence]]) -> list[li
         for i, req in enumerate(requests):
             if req is None or len(u) == 0:
                 continue
-            scale = model.amplitude_scale(u)
-            scale = np.ones(len(u)) if scale is None else scale
-            entry = (j, i, len(u), req, model.rows_for(u, req.phi), np.repeat(scale, req.n_jumps))
+            scale = model.amplitude_scale(u)  # None: the command's stroke
+            scale = None if scale is None else np.repeat(scale, req.n_jumps)
+            entry = (j, i, len(u), req, model.rows_for(u, req.phi), scale)
             (plain if req.frame_times_s is None else tracked).append(entry)
     out: list[list] = [[None] * len(r) for _, _, r in jobs]
     # heights-only jumps and tracked jumps are two batched calls: the frame simulator
@@ -799,8 +799,11 @@ def _simulate(jobs: Sequence[tuple[JumpModel, np.ndarray, Sequence]]) -> list[li
             if with_frames:
                 times.append(np.tile(np.concatenate(req.frame_times_s), n))
                 counts.append(np.tile([len(t) for t in req.frame_times_s], n))
-        scale = np.concatenate(scales)
-        scale = None if np.all(scale == 1.0) else scale  # a robot known exactly: as before
+        scale = None  # every model's stroke is its command's: the programs as they are
+        if any(s is not None for s in scales):
+            scale = np.concatenate(
+                [np.ones(len(r)) if s is None else s for r, s in zip(rows, scales, strict=True)]
+            )
         if with_frames:
             res = simulate_frames_rows(
                 np.concatenate(rows),

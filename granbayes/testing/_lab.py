@@ -317,7 +317,7 @@ def _true_robot(
     nominal: Experiment, design: LabDesign, rng: np.random.Generator
 ) -> tuple[Experiment, dict[str, float]]:
     """The true robot: given values, else draws about the nominal ones (in key order)."""
-    values = {**vars(nominal.robot), "amplitude_mm": nominal.command.amplitude_mm}
+    values = nominal.robot_values
     changes: dict[str, float] = {}
     for key in UNCERTAIN_KEYS:
         sd = float(design.robot_sd.get(key, 0.0))
