@@ -47,6 +47,13 @@ def main(argv: list[str] | None = None) -> int:
         "(+1.5 sd), stroke -3%% (-1.5 sd); results named miscalibrated_null_issue_robot",
     )
     parser.add_argument(
+        "--phi-sd",
+        type=float,
+        default=0.0,
+        help="each jump's bed's true phi scatters by this much about the written one, and "
+        "[bed] phi_sd says so (the issue's lab: 0.002); results named ..._phi",
+    )
+    parser.add_argument(
         "--finished-only",
         action="store_true",
         help="tabulate the tasks finished so far in OUT.partial/tasks without running any "
@@ -63,12 +70,16 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--modes {args.modes}: choose from {', '.join(MODES)}")
     offsets = ISSUE_ROBOT if args.issue_robot else None
     name = "miscalibrated_null_issue_robot" if args.issue_robot else "miscalibrated_null"
+    name += "_phi" if args.phi_sd > 0 else ""
+    options = {"offsets_sd": offsets, **({"phi_sd": args.phi_sd} if args.phi_sd > 0 else {})}
     tasks = [
-        Task(f"{mode}-{s:03d}", diagnose_miscalibrated, (mode,), {"offsets_sd": offsets}, seed=s)
+        Task(f"{mode}-{s:03d}", diagnose_miscalibrated, (mode,), options, seed=s)
         for s in range(args.seeds)
         for mode in modes
     ]
     description = {"kind": "miscalibrated null", "calibration_sd": MISCALIBRATION}
+    if args.phi_sd > 0:
+        description["phi_sd"] = args.phi_sd
     if modes != MODES:
         description["modes"] = list(modes)
     if offsets:
@@ -130,6 +141,13 @@ def main(argv: list[str] | None = None) -> int:
             " Robot: the issue's (spring +1.33 sd, motor +1.5 sd, stroke -1.5 sd), not drawn."
             if offsets
             else " Robot: drawn from its calibration per data set."
+        )
+        + (
+            f" Beds: each jump's true phi ~ Normal(written, {args.phi_sd:g}) (one bed per "
+            "jump), and experiment.toml says so; `diagnose` fits per volume fraction, whose "
+            "coefficients absorb it."
+            if args.phi_sd > 0
+            else ""
         ),
         "",
         markdown_table(pd.DataFrame(rates), ".3g"),

@@ -611,6 +611,7 @@ def diagnose_miscalibrated(
     trials: int = 4,
     offsets_sd: Mapping[str, float] | None = None,
     config: DiagnoseSettings | None = None,
+    phi_sd: float = 0.0,
 ) -> list[dict[str, Any]]:
     """Campaign task: ``diagnose`` on null data from a robot known only to its calibration.
 
@@ -636,12 +637,16 @@ def diagnose_miscalibrated(
         from nominal [calibration sds] (the others drawn).
     config : DiagnoseSettings, optional
         The rule and sampler settings (its ``calibration`` is replaced).
+    phi_sd : float
+        Each jump's bed's true phi scatters about the written one by this much (one bed
+        per jump, ``phi_jitter="jump"``), and ``[bed] phi_sd`` says so (0: exact beds, and
+        the data of earlier studies bit for bit).
 
     Returns
     -------
     list of dict
         One row: the truth (each parameter's offset from nominal in calibration sds, the
-        scatter), the verdict, the terms added, the gain and SE, convergence, fits, wall
+        scatter, ``phi_sd``), the verdict, the terms added, the gain and SE, convergence, fits, wall
         time [s].
     """
     import tempfile
@@ -666,6 +671,8 @@ def diagnose_miscalibrated(
         intrusion_speeds_mm_s=(),
         robot_sd=MISCALIBRATION,
         robot_true=_offset_robot(offsets_sd or {}),
+        phi_sd=phi_sd,
+        phi_jitter="jump",
     )
     lab = synthetic_lab_data(
         lambda phi: {"k": k0 + k1 * (phi - _PHI_C) + k2 * (phi - _PHI_C) ** 2},
@@ -692,6 +699,7 @@ def diagnose_miscalibrated(
                 for k, sd in MISCALIBRATION.items()
             },
             "sigma_mm": sigma_mm,
+            "phi_sd": phi_sd,
             "verdict": rec.verdict.value,
             "added": "+".join(rec.selected.added),
             "claim": _claim(rec),

@@ -640,6 +640,14 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         help="independent laws per volume fraction, or quadratic in phi-phi_c",
     )
     parser.add_argument(
+        "--bed-phi",
+        choices=("integrate", "measured"),
+        default="integrate",
+        help="with [bed] phi_sd in experiment.toml and --phi-mode quadratic: each jump's and "
+        "intrusion test's bed phi latent about the measured value, integrated out by "
+        "quadrature (default), or taken as measured",
+    )
+    parser.add_argument(
         "--noise",
         choices=("normal", "student_t"),
         default="normal",
@@ -683,6 +691,7 @@ def _fit_config(args: argparse.Namespace):
             sampler=sampler,
             n_threads=args.threads,
             calibration=args.calibration,
+            bed_phi=args.bed_phi,
         )
     except ValueError as exc:
         raise UsageError(f"--terms {args.terms}: {exc}") from None

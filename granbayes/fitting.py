@@ -23,6 +23,16 @@ them at about the per-run cost and are the next step. The per-run copies' cost a
 fixed-robot fit is measured in ``benchmarks/results/calibrated_fit.md`` (walkers ``4 x
 ndim`` and about twice the steps).
 
+A bed's volume fraction known only to its measurement (``[bed] phi_sd``): with
+``bed_phi="integrate"`` (default) and ``phi_mode="quadratic"``, each jump's and each
+intrusion test's bed has a latent true phi, integrated out of that unit's likelihood
+(:mod:`granbayes.likelihood._beds` says how and why). Why only there: the smooth laws are
+defined beside the measured volume fractions; per-phi coefficients are not, and a local
+slope per coefficient and volume fraction would be identified only by the extra scatter
+the beds add to that volume fraction's jumps (in practice by its prior, i.e. by the
+neighbouring volume fractions: the smooth law again). So in ``per_phi`` mode a volume
+fraction's coefficients are those of the beds prepared at it, and the fit says so.
+
 :func:`compare_commands` answers the thesis's question "one force law for every jump?":
 per volume fraction, the shared law against separate laws per command, by PSIS-LOO.
 
@@ -62,6 +72,7 @@ from .forces import PARAMETERS, terms_of
 from .kinds import KINDS, blocks_for
 from .likelihood import (
     CALIBRATED_KEYS,
+    BedPhi,
     HeightBlock,
     JumpModel,
     NoiseFamily,
@@ -129,6 +140,18 @@ class FitSettings:
         one for all volume fractions; ``per_phi``: each volume fraction integrates over its
         own, see the module docstring); ``"nominal"``: take the nominal values as exact
         (the fit warns). Without uncertainties both are the same fit, bit for bit.
+    bed_phi : {"integrate", "measured"}
+        ``"integrate"``: with ``[bed] phi_sd > 0`` and ``phi_mode="quadratic"``, each
+        jump's and each intrusion test's bed has a latent volume fraction
+        ``Normal(measured, phi_sd)``, integrated out by Gauss-Hermite quadrature
+        (:class:`granbayes.likelihood.BedPhi`; ``phi_nodes`` simulations per
+        configuration); tracked jumps take the measured phi. In ``per_phi`` mode a
+        volume fraction's coefficients are those of the beds prepared at it (a law
+        defined only at the measured value cannot be evaluated beside it), and the fit
+        warns. ``"measured"``: every bed's phi as measured (the fit warns when
+        ``phi_sd > 0``). Without ``phi_sd`` both are the same fit, bit for bit.
+    phi_nodes : int
+        Gauss-Hermite nodes of a bed's latent volume fraction.
     """
 
     terms: tuple[str, ...] = ("depth",)
@@ -142,6 +165,8 @@ class FitSettings:
     n_threads: int | None = None
     n_prior_draws: int = 200
     calibration: Literal["sample", "nominal"] = "sample"
+    bed_phi: Literal["integrate", "measured"] = "integrate"
+    phi_nodes: int = 9
 
     def __post_init__(self) -> None:
         """Put the terms in canonical order and check the modes."""
@@ -150,6 +175,9 @@ class FitSettings:
             raise ValueError(f"phi_mode must be 'per_phi' or 'quadratic', got {self.phi_mode!r}")
         if self.calibration not in ("sample", "nominal"):
             raise ValueError(f"calibration must be 'sample' or 'nominal', got {self.calibration!r}")
+        if self.bed_phi not in ("integrate", "measured"):
+            raise ValueError(f"bed_phi must be 'integrate' or 'measured', got {self.bed_phi!r}")
+        BedPhi(0.0, self.phi_nodes)  # checks the node count
 
     def to_dict(self) -> dict:
         """JSON-ready description (stored in the DataTree attributes)."""
@@ -177,6 +205,7 @@ class FitSettings:
             return {k: v for k, v in dict(values or {}).items() if k in names}
 
         fields = known(cls, d)
+        fields.setdefault("bed_phi", "measured")  # a fit saved before beds were latent
         fields["terms"] = tuple(fields.get("terms", ("depth",)))
         fields["fixed"] = {str(k): float(v) for k, v in dict(fields.get("fixed", {})).items()}
         if "sampler" in fields:
@@ -543,12 +572,22 @@ def _held_out(model: JumpModel, data: Measurements) -> list:
     return out
 
 
-def _observation_settings(config: FitSettings, phi_mode: PhiMode) -> ObservationSettings:
+def _observation_settings(
+    config: FitSettings, phi_mode: PhiMode, experiment: Experiment
+) -> ObservationSettings:
     return ObservationSettings(
         noise=config.noise,
         nu=config.nu,
         sigma_mode=config.sigma_mode if phi_mode == "quadratic" else "per_phi",
+        bed=_bed(experiment, config, phi_mode),
     )
+
+
+def _bed(experiment: Experiment, config: FitSettings, phi_mode: PhiMode) -> BedPhi:
+    """A bed's latent volume fraction as the fit treats it (``FitSettings.bed_phi``)."""
+    if config.bed_phi == "integrate" and phi_mode == "quadratic" and experiment.phi_sd > 0:
+        return BedPhi(experiment.phi_sd, config.phi_nodes)
+    return BedPhi()
 
 
 def _make_model(
@@ -558,10 +597,16 @@ def _make_model(
     priors,
     phi_mode: PhiMode,
 ) -> JumpModel:
-    settings = _observation_settings(config, phi_mode)
+    settings = _observation_settings(config, phi_mode, experiment)
     if isinstance(data, Observations):
         blocks = [
-            HeightBlock(data, noise=settings.noise, nu=settings.nu, sigma_mode=settings.sigma_mode)
+            HeightBlock(
+                data,
+                noise=settings.noise,
+                nu=settings.nu,
+                sigma_mode=settings.sigma_mode,
+                bed=settings.bed,
+            )
         ]
     else:
         blocks = blocks_for(data, settings)
@@ -1021,6 +1066,30 @@ def _run_record(part: FitPart) -> dict:
     }
 
 
+def _bed_warnings(parts: list[FitPart], config: FitSettings, phi_sd: float) -> list[str]:
+    """What a fit does not integrate of ``[bed] phi_sd`` (``FitSettings.bed_phi``)."""
+    given = f"experiment.toml gives [bed] phi_sd = {phi_sd:g}; "
+    if config.bed_phi == "measured":
+        return [
+            given + "this fit takes each bed's phi as exact (the measured value): its "
+            "intervals do not include that uncertainty"
+        ]
+    if config.phi_mode == "per_phi":
+        return [
+            given + "in per_phi mode a volume fraction's coefficients are those of the beds "
+            "prepared at it (the law is not defined beside the measured value): the beds' "
+            "scatter about it is absorbed into them and into the scatter, not integrated "
+            "out (--phi-mode quadratic integrates it)"
+        ]
+    kinds = {b.kind for p in parts for b in p.model.blocks}
+    if "trajectories" in kinds:
+        return [
+            given + "the tracked jumps take the measured phi (jump heights and intrusion "
+            "tests integrate their bed's phi)"
+        ]
+    return []
+
+
 def _warnings(
     parts: list[FitPart], config: FitSettings, experiment: Experiment | None = None
 ) -> list[str]:
@@ -1042,11 +1111,7 @@ def _warnings(
                 )
             )
         if experiment.phi_sd > 0:
-            out.append(
-                f"experiment.toml gives [bed] phi_sd = {experiment.phi_sd:g}; this fit takes "
-                "each bed's phi as exact (the measured value): its intervals do not include "
-                "that uncertainty"
-            )
+            out.extend(_bed_warnings(parts, config, experiment.phi_sd))
     for p in parts:
         out.extend(f"run {p.label}: {w}" for w in p.run.warnings)
         if not p.run.converged and not p.run.warnings:

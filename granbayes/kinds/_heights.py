@@ -28,6 +28,7 @@ def _block(table: pd.DataFrame, settings: ObservationSettings) -> HeightBlock:
         noise=settings.noise,
         nu=settings.nu,
         sigma_mode=settings.sigma_mode,
+        bed=settings.bed,
     )
 
 

@@ -24,7 +24,7 @@ def _load(path: Path, experiment: Experiment) -> pd.DataFrame:
 
 
 def _block(table: pd.DataFrame, settings: ObservationSettings) -> IntrusionBlock:
-    return IntrusionBlock(table, sd_mode=settings.sigma_mode)
+    return IntrusionBlock(table, sd_mode=settings.sigma_mode, bed=settings.bed)
 
 
 def _to_observed(table: pd.DataFrame) -> xr.Dataset:

@@ -23,6 +23,7 @@ import pandas as pd
 
 from ..commands import CommandProgram
 from ..priors import Prior
+from ._beds import BedPhi
 
 __all__ = ["Block", "Coordinate", "JumpRequest", "Law", "ObservationSettings", "Simulated"]
 
@@ -70,6 +71,10 @@ class ObservationSettings:
         deviation 2 frames in 98.8% of jumps.
     offset_step_ms : float
         The largest step of the grid the clock offset is linearised about [ms].
+    bed : BedPhi
+        Each bed's true volume fraction about the measured one, integrated out by the
+        blocks of jump heights and intrusion tests (default: measured exactly). Tracked
+        jumps take the measured phi.
     """
 
     noise: str = "normal"
@@ -77,6 +82,7 @@ class ObservationSettings:
     sigma_mode: str = "per_phi"
     max_offset_frames: float = 5.0
     offset_step_ms: float = 0.25
+    bed: BedPhi = field(default_factory=BedPhi)
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,9 @@
 Noise: Gaussian (default) or Student-t (``noise="student_t"``, ``nu`` degrees of freedom,
 fixed; a heavy-tailed option robust to outlying trials), with the scatter ``sigma_mm``
 fitted per volume fraction (default) or globally. The unit of leave-one-out is one jump.
+With ``bed`` (a :class:`~granbayes.likelihood._beds.BedPhi` with ``phi_sd > 0``) each jump's
+bed has a latent volume fraction, integrated out by quadrature: every configuration is
+simulated at the quadrature's nodes about its measured phi.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from scipy.special import gammaln
 
 from ..commands import SETTINGS, CommandProgram, CommandSettings, build_command
 from ..priors import Prior, default_priors
+from ._beds import BedPhi
 from ._blocks import Block, Coordinate, JumpRequest, Law, Simulated
 
 __all__ = ["HeightBlock", "NoiseFamily", "Observations", "SigmaMode"]
@@ -27,6 +31,11 @@ __all__ = ["HeightBlock", "NoiseFamily", "Observations", "SigmaMode"]
 NoiseFamily = Literal["normal", "student_t"]
 #: The scatter ``sigma_mm``: one per volume fraction, or one for all.
 SigmaMode = Literal["per_phi", "global"]
+
+#: Fine-grid steps per interval between a latent bed phi's nodes (0.125 sd with the default
+#: nodes): the trapezoid rule resolves a jump's density in phi while its height moves up to
+#: about 8 scatters per sd of phi.
+_PER_INTERVAL = 8
 
 #: Columns that define one simulation: the volume fraction, the command and its settings.
 _CONFIG_COLUMNS = ("phi", "command", *SETTINGS)
@@ -120,6 +129,9 @@ class HeightBlock(Block):
         Degrees of freedom of the Student-t noise.
     sigma_mode : {"per_phi", "global"}
         Whether the scatter ``sigma_mm`` is fitted per volume fraction or once.
+    bed : BedPhi, optional
+        Each jump's bed's true volume fraction about the measured one, integrated out
+        (default: measured exactly).
     """
 
     kind = "heights"
@@ -133,6 +145,7 @@ class HeightBlock(Block):
         noise: NoiseFamily = "normal",
         nu: float = 4.0,
         sigma_mode: SigmaMode = "per_phi",
+        bed: BedPhi | None = None,
     ) -> None:
         if noise not in ("normal", "student_t"):
             raise ValueError(f"noise must be 'normal' or 'student_t', got {noise!r}")
@@ -144,6 +157,7 @@ class HeightBlock(Block):
         self.noise = noise
         self.nu = float(nu)
         self.sigma_mode = sigma_mode
+        self.bed = bed if bed is not None else BedPhi()
         self._phis = observations.phis
         self._phi_index_of_obs = np.searchsorted(
             self._phis, observations.table["phi"].to_numpy(float)
@@ -194,8 +208,22 @@ class HeightBlock(Block):
         return list(self._coords)
 
     def jump_request(self) -> JumpRequest:
-        """One simulation per configuration (volume fraction, command, settings)."""
-        return JumpRequest(self.obs.config_phi, self.obs.programs)
+        """One simulation per configuration (volume fraction, command, settings) and node.
+
+        Node-minor: configuration ``c`` at node ``q`` is jump ``c * bed.size + q`` (one
+        node, the measured phi, when the bed's phi is exact).
+        """
+        size = self.bed.size
+        if size == 1:
+            return JumpRequest(self.obs.config_phi, self.obs.programs)
+        programs = [p for p in self.obs.programs for _ in range(size)]
+        return JumpRequest(self.bed.nodes(self.obs.config_phi), programs)
+
+    def _node_heights(self, sim: Simulated) -> np.ndarray:
+        """Simulated height [mm] of every jump at every node: shape (n, n_jumps, size)."""
+        n = sim.heights_mm.shape[0]
+        per_config = sim.heights_mm.reshape(n, -1, self.bed.size)
+        return per_config[:, self.obs.config_of_obs, :]
 
     # the observation model: the only place where the noise family is written down
     def sigma_at(self, u: np.ndarray, phis: np.ndarray) -> np.ndarray:
@@ -265,7 +293,9 @@ class HeightBlock(Block):
         """
         if isinstance(observations, pd.DataFrame):
             observations = Observations.from_table(observations)
-        other = HeightBlock(observations, noise=self.noise, nu=self.nu, sigma_mode=self.sigma_mode)
+        other = HeightBlock(
+            observations, noise=self.noise, nu=self.nu, sigma_mode=self.sigma_mode, bed=self.bed
+        )
         other._coords = self._coords
         other._sigma = self.sigma_of
         return other
@@ -326,24 +356,31 @@ class HeightBlock(Block):
         law : callable or None
             The force law (unused: the heights carry it).
         sim : Simulated
-            The simulated height of every configuration.
+            The simulated height of every configuration (at every node).
 
         Returns
         -------
         ndarray, shape (n, n_jumps)
-            ``-inf`` for a walker any of whose simulations failed.
+            ``-inf`` for a walker any of whose simulations failed. With a latent bed phi,
+            each jump's density integrated over it (:mod:`granbayes.likelihood._beds`).
         """
-        mean = sim.heights_mm[:, self.obs.config_of_obs]
-        ll = self.log_density(self._y[None, :], mean, self._sigma(u, self.obs))
+        if self.bed.size == 1:
+            mean = sim.heights_mm[:, self.obs.config_of_obs]
+            ll = self.log_density(self._y[None, :], mean, self._sigma(u, self.obs))
+        else:  # interpolated between the nodes, integrated on the fine grid
+            _, log_w = self.bed.grid(_PER_INTERVAL)
+            mean = self._node_heights(sim) @ self.bed.spline(_PER_INTERVAL)
+            sigma = self._sigma(u, self.obs)[:, :, None]
+            ll = self.bed.integrate(self.log_density(self._y[None, :, None], mean, sigma), log_w)
         ll[~np.all(sim.ok, axis=1)] = -np.inf
         return ll
 
     def n_extras(self) -> int:
-        """The simulated height of every configuration is kept with each draw."""
-        return len(self.obs.configs)
+        """The simulated height of every configuration (at every node) is kept with each draw."""
+        return len(self.obs.configs) * self.bed.size
 
     def extras(self, sim: Simulated | None) -> np.ndarray:
-        """The simulated height of every configuration [mm].
+        """The simulated height of every configuration (at every node, node-minor) [mm].
 
         Parameters
         ----------
@@ -352,7 +389,7 @@ class HeightBlock(Block):
 
         Returns
         -------
-        ndarray, shape (n, n_configs)
+        ndarray, shape (n, n_configs * bed.size)
         """
         return sim.heights_mm
 
@@ -361,8 +398,9 @@ class HeightBlock(Block):
 
         Parameters
         ----------
-        extras : ndarray, shape (n, n_configs)
-            Simulated height of every configuration [mm] (NaN where it failed).
+        extras : ndarray, shape (n, n_configs * bed.size)
+            Simulated height of every configuration (at every node) [mm] (NaN where it
+            failed).
 
         Returns
         -------
@@ -390,9 +428,15 @@ class HeightBlock(Block):
         -------
         dict of str to ndarray, shape (n, n_jumps)
             ``height_sim_mm`` (no noise) and ``height_mm`` (plus one draw of the noise;
-            NaN where a simulation failed).
+            NaN where a simulation failed). With a latent bed phi, each replicate's bed
+            is one draw of it (:meth:`BedPhi.draw`): ``height_sim_mm`` is the height on
+            that bed (the spline between the nodes).
         """
-        mean = sim.heights_mm[:, self.obs.config_of_obs]
+        if self.bed.size == 1:
+            mean = sim.heights_mm[:, self.obs.config_of_obs]
+        else:
+            heights = self._node_heights(sim)
+            mean = self.bed.interpolate(heights, self.bed.draw(rng, heights.shape[:2]))
         rep = self.add_noise(mean, self._sigma(u, self.obs), rng)
         return {"height_mm": rep, "height_sim_mm": mean}
 

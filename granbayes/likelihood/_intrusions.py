@@ -7,6 +7,9 @@ simulator for nothing. Observation model: the measured force is the model's plus
 independent Gaussian noise of a fitted scale ``force_sd_N`` [N] per volume fraction (one
 load cell, read at depths much farther apart than the cell's response: white noise). The
 unit of leave-one-out is a whole test (its samples are one curve, not exchangeable).
+With ``bed`` (a :class:`~granbayes.likelihood._beds.BedPhi` with ``phi_sd > 0``) each test's
+bed has a latent volume fraction, shared by its samples and integrated out by quadrature
+per test.
 """
 
 from __future__ import annotations
@@ -20,11 +23,15 @@ import pandas as pd
 
 from ..priors import Prior
 from ..simulator import ROW_FIELDS, intrusion_force_rows
+from ._beds import BedPhi
 from ._blocks import Block, Coordinate, Law, Simulated, coordinate_values, noise_coordinates
 
 __all__ = ["IntrusionBlock"]
 
 _ROW_RADIUS = ROW_FIELDS.index("foot_radius")
+
+#: Highest degree of a sample's force as a polynomial in its bed's latent phi.
+_DEGREE = 4
 
 #: Default prior of the force noise: a load cell's noise, from 1 mN to 20 N.
 FORCE_SD_PRIOR = Prior(
@@ -42,6 +49,9 @@ class IntrusionBlock(Block):
         ``speed_mm_s``, ``depth_mm``, ``force_N``, ``foot_radius`` (NaN: the robot's).
     sd_mode : {"per_phi", "global"}
         The force noise per volume fraction, or one for all.
+    bed : BedPhi, optional
+        Each test's bed's true volume fraction about the measured one, integrated out
+        (default: measured exactly).
     """
 
     kind = "intrusions"
@@ -49,9 +59,12 @@ class IntrusionBlock(Block):
     variable = "intrusion"
     predictive_dims: ClassVar[Mapping[str, str]] = {"force_N": "reading", "force_sim_N": "reading"}
 
-    def __init__(self, table: pd.DataFrame, *, sd_mode: str = "per_phi") -> None:
+    def __init__(
+        self, table: pd.DataFrame, *, sd_mode: str = "per_phi", bed: BedPhi | None = None
+    ) -> None:
         self._table = table.reset_index(drop=True)
         self.sd_mode = sd_mode
+        self.bed = bed if bed is not None else BedPhi()
         codes, _ = pd.factorize(self._table["test"].astype(str), sort=False)
         self._unit = np.asarray(codes, dtype=np.int64)
         self._n_units = int(self._unit.max()) + 1 if len(self._unit) else 0
@@ -118,7 +131,7 @@ class IntrusionBlock(Block):
         -------
         IntrusionBlock
         """
-        other = IntrusionBlock(table, sd_mode=self.sd_mode)
+        other = IntrusionBlock(table, sd_mode=self.sd_mode, bed=self.bed)
         other._coords = self._coords
         return other
 
@@ -141,20 +154,38 @@ class IntrusionBlock(Block):
         Returns
         -------
         ndarray
-            NaN where a walker's law is not valid.
+            NaN where a walker's law is not valid; at the measured volume fractions.
         """
-        rows = law.rows(self._variant_phi)
-        n_var = len(self._variant_phi)
+        return self._node_force_N(law, BedPhi())[..., 0]
+
+    def _node_force_N(self, law: Law, bed: BedPhi) -> np.ndarray:
+        """The force [N] at every sample and node of ``bed``: (n, n_samples, bed.size)."""
+        size = bed.size
+        n_var = len(self._variant_phi) * size  # one integrator row per variant and node
+        rows = law.rows(bed.nodes(self._variant_phi))
         n = rows.shape[0] // max(n_var, 1)
-        given = self._variant_radius > 0
+        given = np.repeat(self._variant_radius > 0, size)
         if np.any(given):
             rows = rows.reshape(n, n_var, -1)
-            rows[:, given, _ROW_RADIUS] = self._variant_radius[given]
+            rows[:, given, _ROW_RADIUS] = np.repeat(self._variant_radius, size)[given]
             rows = rows.reshape(n * n_var, -1)
         m = len(self._y)
-        index = (np.arange(n)[:, None] * n_var + self._variant[None, :]).reshape(-1)
-        force = intrusion_force_rows(rows, np.tile(self._depth, n), np.tile(self._speed, n), index)
-        return force.reshape(n, m)
+        row_of = (self._variant[:, None] * size + np.arange(size)[None, :]).reshape(-1)
+        index = (np.arange(n)[:, None] * n_var + row_of[None, :]).reshape(-1)
+        depth = np.tile(np.repeat(self._depth, size), n)
+        speed = np.tile(np.repeat(self._speed, size), n)
+        force = intrusion_force_rows(rows, depth, speed, index)
+        return force.reshape(n, m, size)
+
+    def _force_polynomial(self, law: Law) -> np.ndarray:
+        """Each sample's force [N] as a polynomial in its bed's latent ``x``.
+
+        Shape (n, n_samples, degree + 1), lowest power first: the least-squares
+        polynomial of degree ``min(4, n_nodes - 1)`` through the force at the nodes (the
+        closed-form force is smooth in phi).
+        """
+        degree = min(_DEGREE, self.bed.size - 1)
+        return self._node_force_N(law, self.bed) @ self.bed.polynomial(degree).T
 
     def _per_test(self, values: np.ndarray) -> np.ndarray:
         """Sum per test of per-sample values (n, n_samples) -> (n, n_tests)."""
@@ -175,13 +206,28 @@ class IntrusionBlock(Block):
         Returns
         -------
         ndarray, shape (n, n_tests)
-            ``-inf`` for a test whose force could not be computed.
+            ``-inf`` for a test whose force could not be computed. With a latent bed phi,
+            each test's density integrated over it (:mod:`granbayes.likelihood._beds`).
         """
-        force = self.force_N(law)
-        sd = self._sd(u)
-        r = (self._y[None, :] - force) / sd
-        logd = -0.5 * r * r - np.log(sd) - 0.5 * math.log(2.0 * math.pi)
-        ll = self._per_test(logd)
+        if self.bed.size == 1:
+            force = self.force_N(law)
+            sd = self._sd(u)
+            r = (self._y[None, :] - force) / sd
+            logd = -0.5 * r * r - np.log(sd) - 0.5 * math.log(2.0 * math.pi)
+            ll = self._per_test(logd)
+        else:  # each test's sum of squares is a polynomial in its bed's latent x
+            sd = self._sd(u)
+            b = -self._force_polynomial(law) / sd[:, :, None]
+            b[:, :, 0] += self._y[None, :] / sd
+            d = b.shape[-1] - 1
+            sq = np.zeros((*b.shape[:2], 2 * d + 1))
+            for p in range(d + 1):
+                sq[:, :, p : p + d + 1] += b[:, :, p : p + 1] * b
+            n, m, k = sq.shape
+            q = self._per_test(sq.transpose(0, 2, 1).reshape(n * k, m))
+            q = q.reshape(n, k, -1).transpose(0, 2, 1)
+            const = self._per_test(-np.log(sd) - 0.5 * math.log(2.0 * math.pi))
+            ll = const + self.bed.integrate_polynomial(q)
         ll[~np.isfinite(ll)] = -np.inf
         return ll
 
@@ -204,9 +250,16 @@ class IntrusionBlock(Block):
         Returns
         -------
         dict of str to ndarray, shape (n, n_samples)
-            ``force_sim_N`` (no noise) and ``force_N`` (plus one draw of the noise).
+            ``force_sim_N`` (no noise) and ``force_N`` (plus one draw of the noise). With
+            a latent bed phi, each replicated test's bed is one draw of it
+            (:meth:`BedPhi.draw`), shared by the test's samples.
         """
-        force = self.force_N(law)
+        if self.bed.size == 1:
+            force = self.force_N(law)
+        else:
+            coef = self._force_polynomial(law)
+            x = self.bed.draw(rng, (coef.shape[0], self._n_units))[:, self._unit]
+            force = np.polynomial.polynomial.polyval(x, coef.transpose(2, 0, 1), tensor=False)
         rep = force + self._sd(u) * rng.standard_normal(force.shape)
         return {"force_N": rep, "force_sim_N": force}
 
