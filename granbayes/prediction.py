@@ -9,7 +9,10 @@ posterior draws of the force law. It reports two predictive distributions per se
   robot does on average, the dark band of the fit report's predictive check);
 * a **new jump** ``height_mm``: the simulated height plus one draw of the fitted
   trial-to-trial scatter (the noise family of the fit: normal, or Student-t), what one
-  more measured jump would show (the light band).
+  more measured jump would show (the light band). A fit that integrated each bed's
+  volume fraction (``[bed] phi_sd``, quadratic laws) puts the new jump on a new bed: its
+  phi is drawn about the target, its height read from the simulations at the bed
+  quadrature's volume fractions (:class:`granbayes.likelihood.BedPhi`).
 
 Both are summarised by their mean, median and the ``ci_prob`` equal-tailed interval.
 
@@ -310,7 +313,20 @@ def predict(
                 "linearly between the fitted ones (held constant beyond them)"
             )
         sigma_used[:, cols] = sigma
-        rep[:, cols] = model.add_noise(sim[:, cols], sigma, rng)
+        bed = model.heights.bed
+        if bed.latent:  # a new measurement is on a new bed: its phi drawn about the target
+            nodes = rows.loc[rows.index.repeat(bed.size)].assign(phi=bed.nodes(rows["phi"]))
+            obs_nodes = Observations.from_table(nodes)
+            at_nodes, _ = model.predict(u, obs_nodes)
+            at_nodes = at_nodes[:, obs_nodes.config_of_obs].reshape(n, len(cols), bed.size)
+            on_bed = bed.interpolate(at_nodes, bed.draw(rng, (n, len(cols))))
+            rep[:, cols] = model.add_noise(on_bed, sigma, rng)
+            notes.append(
+                f"each replicated jump is on a new bed whose phi scatters about the target by "
+                f"phi_sd = {bed.phi_sd:g}; the simulated height is the law's at the target phi"
+            )
+        else:
+            rep[:, cols] = model.add_noise(sim[:, cols], sigma, rng)
     if saved.config.phi_mode == "quadratic":
         lo, hi = saved.phis.min(), saved.phis.max()
         outside = sorted({p for p in phis if p < lo - PHI_TOLERANCE or p > hi + PHI_TOLERANCE})
