@@ -402,6 +402,12 @@ def run_sbc(
     }
     if experiment.uncertainty:  # the robot's calibration the truths are drawn from
         description["calibration_sd"] = dict(sorted(experiment.uncertainty.items()))
+    if experiment.phi_sd > 0 and log is not None:
+        log(
+            f"[bed] phi_sd = {experiment.phi_sd:g} is not drawn: SBC's laws are drawn per "
+            "volume fraction with no slope in phi, so a bed's phi would change only the "
+            "added mass (quadratic fits integrate it; their SBC is not built)"
+        )
     seeds = spawn_seeds(seed, int(n_replicates))
     tasks = [
         Task(
