@@ -33,6 +33,15 @@ from granbayes.testing import LabDesign, synthetic_lab_data, write_lab_experimen
 
 PHI_SD = 0.002
 TINY = SamplerSettings(n_walkers=8, n_ensembles=2, check_every=50, max_steps=100, n_draws=30)
+#: The fits of the wiring tests: quadratic laws, one scatter and one force noise, tiny runs.
+QUADRATIC = FitSettings(
+    terms=("depth", "drag"),
+    phi_mode="quadratic",
+    sigma_mode="global",
+    sampler=TINY,
+    n_threads=1,
+    n_prior_draws=0,
+)
 LOG_K = (np.log(4000.0), 38.0, 300.0)  # log k = c0 + c1 x + c2 x^2, x = phi - phi_c
 
 
@@ -221,15 +230,7 @@ def test_the_fit_says_what_it_does_with_phi_sd() -> None:
 def test_a_fit_integrates_the_beds_and_a_saved_fit_rebuilds_them(loaded, tmp_path) -> None:
     """Tiny sampler: the wiring, not the answer (benchmarks/latent_phi_fit.py measures it)."""
     _, exp, data = loaded
-    config = FitSettings(
-        terms=("depth", "drag"),
-        phi_mode="quadratic",
-        sigma_mode="global",
-        sampler=TINY,
-        n_threads=1,
-        n_prior_draws=10,
-    )
-    res = fit(exp, data, config, seed=2)
+    res = fit(exp, data, dataclasses.replace(QUADRATIC, n_prior_draws=10), seed=2)
     assert not any("phi_sd" in w for w in res.warnings)  # integrated, nothing to say
     tree = res.datatree
     assert np.all(np.isfinite(tree["posterior_predictive"]["force_N"].values))
@@ -260,21 +261,13 @@ def test_a_new_jump_is_predicted_on_a_new_bed(loaded) -> None:
     every kept draw (~300 replicates): the sd's standard error is ~4%; the excess measured 86%.
     """
     _, exp, data = loaded
-    config = FitSettings(
-        terms=("depth", "drag"),
-        phi_mode="quadratic",
-        sigma_mode="global",
-        sampler=TINY,
-        n_threads=1,
-        n_prior_draws=0,
-    )
-    latent = fit(exp, data, config, seed=2)
+    latent = fit(exp, data, QUADRATIC, seed=2)
     freqs = [8.0, 9.0, 10.0, 11.0, 12.0]
     wide = predict(latent, "delayed_stutter_preload", 0.622, freq_hz=freqs, n_draws=None, rng=1)
     assert any("new bed" in note for note in wide.notes)
     spread = np.nanstd(wide.height_mm - wide.height_sim_mm)
     sigma = float(np.median(wide.table["sigma_mm_median"]))
     assert spread > 1.1 * sigma
-    measured = fit(exp, data, dataclasses.replace(config, bed_phi="measured"), seed=2)
+    measured = fit(exp, data, dataclasses.replace(QUADRATIC, bed_phi="measured"), seed=2)
     narrow = predict(measured, "delayed_stutter_preload", 0.622, n_draws=40, rng=1)
     assert not any("new bed" in note for note in narrow.notes)
