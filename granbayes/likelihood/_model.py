@@ -506,7 +506,8 @@ class JumpModel:
         Returns
         -------
         mean_mm, sigma_mm : ndarray, shape (n, n_obs)
-            Simulated height and noise scale of every jump.
+            Simulated height (at the measured volume fraction, also when the fit
+            integrates each bed's) and noise scale of every jump.
         ok : ndarray of bool, shape (n,)
             Whether every simulation of the walker succeeded.
         """
@@ -566,8 +567,9 @@ class JumpModel:
         ----------
         u : ndarray, shape (n, ndim)
             Walker positions (for the noise parameters).
-        heights_mm : ndarray, shape (n, n_configs)
-            Simulated heights.
+        heights_mm : ndarray, shape (n, n_configs * bed.size)
+            Simulated heights of every configuration (at every node of a latent bed phi,
+            node-minor: the heights block's :meth:`~HeightBlock.jump_request` order).
 
         Returns
         -------
