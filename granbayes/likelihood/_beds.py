@@ -58,12 +58,13 @@ from scipy.special import logsumexp
 __all__ = ["BedPhi"]
 
 
-def _horner(coef: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Polynomials (coefficients ``(..., d + 1)``, lowest first) at ``x`` ``(..., K)``."""
-    out = np.broadcast_to(coef[..., -1:], x.shape).copy() if coef.shape[-1] else np.zeros(x.shape)
-    for j in range(coef.shape[-1] - 2, -1, -1):
-        out = out * x + coef[..., j : j + 1]
-    return out
+def _polyval(coef: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Polynomials (coefficients ``(..., d + 1)``, lowest first) at ``x`` ``(..., K)``.
+
+    NumPy's Horner evaluation, with the coefficients on the last axis and broadcast
+    against ``x``.
+    """
+    return np.polynomial.polynomial.polyval(x, np.moveaxis(coef, -1, 0)[..., None], tensor=False)
 
 
 @functools.lru_cache(maxsize=4)
@@ -251,18 +252,18 @@ class BedPhi:
         d2 = d1[..., 1:] * np.arange(1, d1.shape[-1])  # q''
 
         def g(x):  # log integrand without the normal's constant
-            return -0.5 * _horner(q, x) - 0.5 * x * x
+            return -0.5 * _polyval(q, x) - 0.5 * x * x
 
         x0, _ = self.grid(16)
         start = np.argmax(g(np.broadcast_to(x0, (*q.shape[:-1], len(x0)))), axis=-1)
         x = x0[start].astype(float)
         with np.errstate(all="ignore"):
             for _ in range(8):  # Newton on g'(x) = -q'(x)/2 - x
-                grad = -0.5 * _horner(d1, x[..., None])[..., 0] - x
-                curv = -0.5 * _horner(d2, x[..., None])[..., 0] - 1.0
+                grad = -0.5 * _polyval(d1, x[..., None])[..., 0] - x
+                curv = -0.5 * _polyval(d2, x[..., None])[..., 0] - 1.0
                 step = np.where(curv < 0, -grad / curv, 0.0)
                 x = x + np.clip(step, -0.5, 0.5)
-            curv = 0.5 * _horner(d2, x[..., None])[..., 0] + 1.0
+            curv = 0.5 * _polyval(d2, x[..., None])[..., 0] + 1.0
             scale = 1.0 / np.sqrt(np.where(curv > 0, curv, 1.0))
             z, w = _gauss_hermite(n_points)
             pts = x[..., None] + scale[..., None] * z
