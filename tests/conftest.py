@@ -82,6 +82,22 @@ def shared_file() -> Callable[[str], Path]:
     return find
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Run the longest tests first: the hidden-effect cases of ``ci_subset`` (a diagnosis
+    each, ~40-60 s), then the fast tests marked ``long`` (> ~10 s), then the rest in file
+    order. pytest-xdist hands the tests out one at a time in this order, so the two workers
+    end together instead of one running a minute-long test while the other idles (longest
+    first is the classic greedy rule for two machines). A stable sort: within each class
+    the file order, and so the sharing of module fixtures, is kept."""
+
+    def rank(item: pytest.Item) -> int:
+        if item.get_closest_marker("ci_subset"):
+            return 0
+        return 1 if item.get_closest_marker("long") else 2
+
+    items.sort(key=rank)
+
+
 def pytest_configure(config):
     """Under pytest-xdist, one numba thread per worker (2 workers x 2 threads on 2 cores
     oversubscribe the machine); tests that ask for more threads explicitly still get them,

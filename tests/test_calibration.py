@@ -265,6 +265,7 @@ def test_summarize_separates_ties_from_false_claims() -> None:
     assert old.loc["drag", "false_claim"] == 1.0 and old.loc["drag", "ambiguous"] == 0.0
 
 
+@pytest.mark.long
 def test_a_case_row_scores_the_selected_law_on_fresh_data() -> None:
     """``gain_fresh``: the selected law against the baseline on a new run of the experiment.
 

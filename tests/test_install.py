@@ -30,6 +30,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+#: One module fixture (the installed wheel) for all its tests; the demo and fit take a minute
+#: (a cold numba compilation in the new environment): run first (tests/conftest.py).
+pytestmark = pytest.mark.long
+
 ROOT = Path(__file__).resolve().parents[1]
 SOURCES = ("pyproject.toml", "README.md", "LICENSE", "granbayes")
 

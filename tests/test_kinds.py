@@ -205,6 +205,7 @@ def test_clock_offset_marginal_is_exact_for_a_linear_motion() -> None:
 
 
 # ----------------------------------------------------------------------------------------
+@pytest.mark.long
 def test_joint_fit_cli_keeps_every_kind_on_its_own_dims(
     lab_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

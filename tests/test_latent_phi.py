@@ -31,6 +31,10 @@ from granbayes.saved import load_fit
 from granbayes.simulator import intrusion_force
 from granbayes.testing import LabDesign, synthetic_lab_data, write_lab_experiment
 
+#: One module fixture (a small fit) for two of its tests, ~35 s in all: run first
+#: (tests/conftest.py).
+pytestmark = pytest.mark.long
+
 PHI_SD = 0.002
 TINY = SamplerSettings(n_walkers=8, n_ensembles=2, check_every=50, max_steps=100, n_draws=30)
 #: The fits of the wiring tests: quadratic laws, one scatter and one force noise, tiny runs.

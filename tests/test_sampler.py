@@ -177,6 +177,7 @@ def test_an_ensemble_stuck_in_a_worse_mode_is_restarted() -> None:
     assert np.all(r.samples[..., 0] < 0.0)
 
 
+@pytest.mark.long
 def test_a_walker_stuck_in_a_worse_mode_is_moved_onto_the_others() -> None:
     """One walker of every ensemble starts in a mode 30 nats lower (as a warm start puts
     one walker at the nested parent's solution).

@@ -184,6 +184,7 @@ def dask_cluster(tmp_path: Path) -> Iterator[tuple[str, list[str]]]:
         log.close()
 
 
+@pytest.mark.long
 def test_sbc_runs_on_a_dask_scheduler_with_two_worker_processes(
     tmp_path: Path, design: Path, dask_cluster: tuple[str, list[str]]
 ) -> None:
@@ -208,6 +209,7 @@ def test_sbc_runs_on_a_dask_scheduler_with_two_worker_processes(
 # ----------------------------------------------------------------------------------------
 # (b) a killed campaign resumes without recomputing finished replicates
 # ----------------------------------------------------------------------------------------
+@pytest.mark.long
 def test_killed_campaign_resumes_without_recomputing(tmp_path: Path, design: Path) -> None:
     out = tmp_path / "sbc"
     partial = tmp_path / "sbc.partial"

@@ -63,6 +63,7 @@ def test_fake_fit_is_seeded() -> None:
     assert not np.array_equal(a.posterior["k"].values, c.posterior["k"].values)
 
 
+@pytest.mark.long
 def test_statistics_and_the_report_run_on_a_fake_fit(tmp_path: Path) -> None:
     """No sampler: the report's tables and figures, labelled SYNTHETIC, from a fake fit."""
     dt = fake_fit(7, terms=("depth", "drag", "compaction"))

@@ -7,10 +7,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 TUTORIAL = ROOT / "docs" / "tutorial.py"
 
 
+@pytest.mark.long
 def test_tutorial_runs(tmp_path: Path) -> None:
     """The tutorial runs as a script in a fresh folder and finds the hidden compaction."""
     env = {**os.environ, "MPLBACKEND": "Agg"}
