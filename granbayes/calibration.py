@@ -42,6 +42,7 @@ refitting, which is how the rule's thresholds are chosen.
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -52,6 +53,7 @@ from scipy import stats
 
 from .commands import COMMAND_NAMES, COMMANDS, CommandSettings
 from .criticism import Candidate, DiagnoseSettings, DiagnosisRecord, diagnose, distinguished
+from .design import candidate_settings, design_jumps
 from .experiment import Experiment, Robot
 from .sampler import ProgressInfo
 from .testing import (
@@ -82,6 +84,8 @@ __all__ = [
     "diagnose_case",
     "diagnose_folder",
     "diagnose_miscalibrated",
+    "design_tie_case",
+    "extra_jumps",
     "as_good_as_truth",
     "case_design",
     "clopper_pearson",
@@ -983,3 +987,226 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
     order = {k: i for i, k in enumerate(CASE_KINDS)}
     out = pd.DataFrame(rows)
     return out.sort_values("kind", key=lambda k: k.map(order), kind="stable").reset_index(drop=True)
+
+
+# ----------------------------------------------------------------------------------------
+# the experiment that settles a tie (granbayes.design), tested on the study's cases
+# ----------------------------------------------------------------------------------------
+def extra_jumps(case: Case, plan: pd.DataFrame, rng: np.random.Generator) -> pd.DataFrame:
+    """New SYNTHETIC jumps of a library case at the settings of ``plan``, by the oracle.
+
+    Parameters
+    ----------
+    case : Case
+        A case of a library kind (or ``null``): its truth is a law of the library.
+    plan : pandas.DataFrame
+        ``command``, ``phi``, ``freq_hz``, ``delay_ms`` (NaN: the experiment's) and
+        ``trials`` per row.
+    rng : numpy.random.Generator
+        Source of the scatter (the case's ``sigma_mm``).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Rows as the case's table has them (``trial`` continues after the case's).
+    """
+    if case.kind not in ("null", *LIBRARY_EFFECTS):
+        raise ValueError(f"extra jumps of {case.kind!r}: only library truths are simulated")
+    k0, k1, k2 = case.truth["k_law"]
+    exp = case.experiment
+    rows = []
+    for r in plan.itertuples():
+        delay = exp.command.delay_ms if np.isnan(r.delay_ms) else float(r.delay_ms)
+        settings = dataclasses.replace(exp.command, freq_hz=float(r.freq_hz), delay_ms=delay)
+        x = r.phi - _PHI_C
+        params = {"k": k0 + k1 * x + k2 * x * x, **case.truth["effect"]}
+        height = simulate_height_scipy(
+            r.command, r.phi, params, dataclasses.replace(exp, command=settings)
+        )
+        for trial in range(int(r.trials)):
+            rows.append(
+                {
+                    "phi": r.phi,
+                    "command": r.command,
+                    "freq_hz": float(r.freq_hz),
+                    "amplitude_mm": exp.command.amplitude_mm,
+                    "delay_ms": delay,
+                    "settle_periods": exp.command.settle_periods,
+                    "trial": case.truth["trials"] + 1 + trial,
+                    "height_mm": height + rng.normal(0.0, case.truth["sigma_mm"]),
+                }
+            )
+    out = pd.DataFrame(rows)
+    out["source"] = case.table["source"].iloc[0] + " extra jumps"
+    return out
+
+
+def _paired_loo(fits: Mapping[str, Any], truth: str, rival: str) -> tuple[float, float, float]:
+    """PSIS-LOO difference truth - rival [nats], its SE, and the larger max Pareto k."""
+    from . import stats as gstats
+
+    loos = {n: gstats.loo(fits[n].datatree) for n in (truth, rival)}
+    d, se = gstats.elpd_difference(loos[truth]["elpd_i"], loos[rival]["elpd_i"])
+    return d, se, max(float(loos[n]["max_pareto_k"]) for n in loos)
+
+
+def design_tie_case(
+    kind: str,
+    index: int,
+    rival: str,
+    config: DiagnoseSettings | None = None,
+    *,
+    seed: int,
+    max_jumps: int = 40,
+    n_threads: int | None = None,
+) -> list[dict[str, Any]]:
+    """Campaign task: a tie broken by designed jumps, and by as many random ones.
+
+    A case of ``kind`` (a library term, the truth) is fitted with the baseline plus the
+    true term and with the baseline plus ``rival``, each as ``diagnose`` fits a law. If
+    the paired PSIS-LOO difference is short of the rule (a tie),
+    :func:`granbayes.design.design_jumps` proposes up to ``max_jumps`` new jumps among
+    every command, the case's volume fractions and the study's frequencies
+    (:data:`DESIGN_RANGES`); the same number of jumps at settings drawn uniformly from the
+    same candidates is the control. Both sets are simulated from the truth by the oracle,
+    and both laws refitted on the data plus each set.
+
+    Parameters
+    ----------
+    kind : str
+        A library term (:data:`LIBRARY_EFFECTS`).
+    index : int
+        Replicate number within its kind (recorded).
+    rival : str
+        The rival term.
+    config : DiagnoseSettings, optional
+        Rule and sampler settings (default ``DiagnoseSettings()``).
+    seed : int
+        The task's seed (the case, the fits, the design and the control are spawned
+        from it).
+    max_jumps : int
+        The design's budget of new jumps.
+    n_threads : int, optional
+        numba threads of the fits.
+
+    Returns
+    -------
+    list of dict
+        One row per arm (``before``; for ties also ``designed`` and ``random``): the
+        paired difference truth - rival and its SE [nats], whether the rule separates
+        them the right way (``settled``) or the wrong way (``wrong_way``), the new jumps,
+        the design's expected difference and SE, the larger max Pareto k, convergence
+        and wall time [s].
+    """
+    from .fitting import FitSettings, fit
+
+    if kind not in LIBRARY_EFFECTS:
+        raise ValueError(f"kind {kind!r}: a library term is needed as the truth")
+    cfg = config or DiagnoseSettings()
+    case_seed, fit_seed, design_seed, noise_seed, random_seed = (
+        int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(5)
+    )
+    case = make_case(kind, case_seed)
+    base = cfg.baseline
+    laws = {kind: (*base, kind), rival: (*base, rival)}
+
+    def fit_both(table: pd.DataFrame) -> dict[str, Any]:
+        return {
+            name: fit(
+                case.experiment,
+                table,
+                FitSettings(
+                    terms=terms,
+                    sampler=cfg.sampler,
+                    n_threads=n_threads,
+                    n_prior_draws=0,
+                    calibration=cfg.calibration,
+                ),
+                seed=fit_seed,
+            )
+            for name, terms in laws.items()
+        }
+
+    common = {
+        "kind": kind,
+        "index": int(index),
+        "rival": rival,
+        "truth_effect": "+".join(f"{k}={v:.4g}" for k, v in case.truth["effect"].items()),
+        "sigma_mm": case.truth["sigma_mm"],
+        "phis": "/".join(f"{p:g}" for p in case.truth["phis"]),
+        "freqs_hz": "/".join(f"{f:g}" for f in case.truth["freqs_hz"]),
+        "trials": case.truth["trials"],
+        "n_jumps": len(case.table),
+    }
+
+    def row(arm: str, fits: Mapping[str, Any], n_new: int, t0: float, **extra) -> dict:
+        d, se, k = _paired_loo(fits, kind, rival)
+        return {
+            **common,
+            "arm": arm,
+            "n_new": int(n_new),
+            "elpd_diff": d,
+            "elpd_diff_se": se,
+            "settled": distinguished(d, se, cfg),
+            "wrong_way": distinguished(-d, se, cfg),
+            "max_pareto_k": k,
+            "converged": all(f.converged for f in fits.values()),
+            "wall_s": time.perf_counter() - t0,
+            **extra,
+        }
+
+    t0 = time.perf_counter()
+    fits = fit_both(case.table)
+    rows = [row("before", fits, 0, t0)]
+    if rows[0]["settled"] or rows[0]["wrong_way"]:
+        return rows  # not a tie: nothing to design
+    t0 = time.perf_counter()
+    grid = candidate_settings(
+        case.table, phis=case.truth["phis"], freqs_hz=_FREQS_HZ, delays_ms=[np.nan]
+    )
+    design = design_jumps(
+        fits,
+        evidence={(kind, rival): (rows[0]["elpd_diff"], rows[0]["elpd_diff_se"])},
+        candidates=grid,
+        max_jumps=max_jumps,
+        config=cfg,
+        rng=design_seed,
+    )
+    hyp = design.hypotheses.set_index(["truth", "rival"])
+    expected = hyp.loc[(kind, rival)]
+    plan = design.plan
+    n_new = int(plan["trials"].sum())
+    designed = pd.concat(
+        [case.table, extra_jumps(case, plan, np.random.default_rng(noise_seed))],
+        ignore_index=True,
+    )
+    rows.append(
+        row(
+            "designed",
+            fit_both(designed),
+            n_new,
+            t0,
+            expected_diff=float(expected["elpd_diff_expected"]),
+            expected_se=float(expected["se_expected"]),
+            design_settled=design.settled,
+            plan=json.dumps(plan.to_dict("records")),
+        )
+    )
+    t0 = time.perf_counter()
+    pick = np.random.default_rng(random_seed).integers(len(grid), size=n_new)
+    counts = np.bincount(pick, minlength=len(grid))
+    random_plan = grid.assign(trials=counts)[counts > 0]
+    control = pd.concat(
+        [case.table, extra_jumps(case, random_plan, np.random.default_rng(noise_seed))],
+        ignore_index=True,
+    )
+    rows.append(
+        row(
+            "random",
+            fit_both(control),
+            n_new,
+            t0,
+            plan=json.dumps(random_plan.to_dict("records")),
+        )
+    )
+    return rows

@@ -823,6 +823,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     import dataclasses as dc
 
     from .criticism import DiagnoseSettings, diagnose
+    from .design import save_tie_laws
     from .forces import terms_of
     from .priors import load_priors
     from .report import write_diagnosis_report
@@ -869,9 +870,187 @@ def run_diagnose(args: argparse.Namespace) -> int:
             progress=bars,
         )
         write_diagnosis_report(result.to_json(), result.selected.datatree, work)
+        save_tie_laws(result, work)  # the posteriors granbayes design reads
     if not args.quiet:
         print((args.out / "report.md").read_text())
     return _converged_exit(result.converged, args)
+
+
+# ----------------------------------------------------------------------------------------
+# granbayes design
+# ----------------------------------------------------------------------------------------
+
+
+def _add_design_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data", metavar="DIR", type=Path, help="the diagnosed experiment folder")
+    parser.add_argument(
+        "--diagnosis",
+        metavar="OUT",
+        type=Path,
+        required=True,
+        help="output folder of granbayes diagnose on DIR (diagnosis.json, laws/)",
+    )
+    parser.add_argument(
+        "--out",
+        metavar="DESIGN",
+        type=Path,
+        required=True,
+        help="output folder (design.json, plan.csv, candidates.csv, design.md; replaced "
+        "only when complete)",
+    )
+    _add_kinds_argument(parser)
+    parser.add_argument(
+        "--tie",
+        type=int,
+        default=0,
+        help="which tie of the diagnosis, in the order of diagnosis.json (default 0)",
+    )
+    parser.add_argument(
+        "--max-jumps",
+        type=int,
+        default=60,
+        help="budget: jumps added until the tie is settled in expectation (default 60)",
+    )
+    cands = parser.add_argument_group(
+        "settings a next jump may have (comma-separated; default: within the measured ones)"
+    )
+    cands.add_argument("--command", metavar="NAME[,NAME]", help="commands (default: all five)")
+    cands.add_argument(
+        "--phi", metavar="PHI[,PHI]", help="volume fractions (default: the measured ones)"
+    )
+    cands.add_argument(
+        "--freq-hz",
+        metavar="HZ[,HZ]",
+        help="frequencies [Hz] (default: 5 from the lowest measured to the highest)",
+    )
+    cands.add_argument(
+        "--delay-ms",
+        metavar="MS[,MS]",
+        help="holds of the delayed commands [ms] (default: the measured ones)",
+    )
+    parser.add_argument(
+        "--draws",
+        type=int,
+        default=1000,
+        help="posterior draws per law and setting (default 1000)",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=0, help="seed of the predictive draws (default 0)"
+    )
+    parser.add_argument("--quiet", action="store_true", help="do not print the plan")
+
+
+def _run_design(args: argparse.Namespace) -> int:
+    from .design import candidate_settings, design_from_diagnosis
+    from .fitting import data_hash
+
+    if args.max_jumps < 1:
+        raise UsageError(f"--max-jumps {args.max_jumps}: must be >= 1")
+    if args.draws < 10:
+        raise UsageError(f"--draws {args.draws}: must be >= 10")
+    if not (args.diagnosis / "diagnosis.json").is_file():
+        raise UsageError(f"--diagnosis {args.diagnosis}: no diagnosis.json there")
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"--out {args.out}: exists and is not a folder")
+    experiment = load_experiment(args.data)
+    data = _load_measurements(args, experiment)
+    record = json.loads((args.diagnosis / "diagnosis.json").read_text())
+    commands = None
+    if args.command:
+        commands = [_check_command(c.strip()) for c in args.command.split(",") if c.strip()]
+    phis = None
+    if args.phi:
+        phis = [_check_phi(p.strip()) for p in args.phi.split(",") if p.strip()]
+    only = {**vars(args), "amplitude_mm": None, "settle_periods": None}  # not design options
+    settings = _setting_values(argparse.Namespace(**only), lists=True)
+    jumps = data.tables.get("heights")
+    if jumps is None:
+        raise UsageError(f"{args.data}: no jump heights: granbayes design proposes jumps")
+    candidates = candidate_settings(
+        jumps,
+        commands=commands,
+        phis=phis,
+        freqs_hz=settings.get("freq_hz"),
+        delays_ms=settings.get("delay_ms"),
+    )
+    try:
+        tie, design = design_from_diagnosis(
+            args.diagnosis,
+            tie=args.tie,
+            candidates=candidates,
+            max_jumps=args.max_jumps,
+            n_draws=args.draws,
+            rng=args.seed,
+        )
+    except (ValueError, FileNotFoundError) as exc:
+        raise UsageError(str(exc)) from None
+    from .saved import load_fit
+
+    first = load_fit(args.diagnosis / "posterior_selected.nc")
+    if first.datatree.attrs.get("data_sha256") != data_hash(experiment, data):
+        raise UsageError(
+            f"{args.data} is not the data {args.diagnosis} diagnosed (sha256 differ; "
+            "pass the same folder, and the same --data if diagnose had one)"
+        )
+    lines = _design_lines(tie, design, record)
+    with staged_folder(args.out, resume=False) as work:
+        (work / "design.json").write_text(
+            json.dumps(
+                {
+                    **design.to_json(),
+                    "tie": {k: (list(v) if k == "laws" else v) for k, v in tie.items()},
+                    "diagnosis": str(args.diagnosis),
+                    "data_source": str(args.data),
+                    "seed": args.seed,
+                    "granbayes_version": __version__,
+                },
+                indent=2,
+            )
+            + "\n"
+        )
+        _write_csv(design.plan, work / "plan.csv")
+        _write_csv(design.candidates, work / "candidates.csv")
+        (work / "design.md").write_text("\n".join(lines) + "\n")
+    if not args.quiet:
+        print("\n".join(lines))
+    return EXIT_OK
+
+
+def _design_lines(tie: dict, design, record: dict) -> list[str]:
+    """The plan in words (``design.md``)."""
+    from .design import SETTINGS
+    from .report import markdown_table
+
+    a, b = design.laws
+    best = design.candidates[
+        [*SETTINGS, *(c for c in design.candidates if c.startswith("mean_mm")), "worst_kl"]
+    ]
+    rule = design.rule
+    lines = [
+        f"# The jumps that would settle {a} against {b}",
+        "",
+        f"Diagnosis of {record.get('data_source', '')}, round {tie['round']}: {a} - {b} = "
+        f"{tie['elpd_diff']:.1f} ± {tie['elpd_diff_se']:.1f} nats (paired), short of the "
+        f"rule (> {rule['min_gain']:g} nats and > {rule['se_factor']:g} SE).",
+        "",
+        "## Plan" + ("" if design.settled else " (budget spent: not settled in expectation)"),
+        "",
+        markdown_table(design.plan),
+        "",
+        f"{design.n_jumps} jumps. Expected paired ELPD difference after them, under each "
+        "hypothesis (Box & Hill 1967: the Kullback-Leibler separation of the two laws' "
+        "predictive distributions of a new jump, normal approximation; the posteriors will "
+        "move when the jumps are fitted, so this is an estimate, not a promise):",
+        "",
+        markdown_table(design.hypotheses.round(2)),
+        "",
+        "The best settings by the separation one jump gives under the worse hypothesis "
+        "(`worst_kl` [nats]; all in `candidates.csv`):",
+        "",
+        markdown_table(best.head(8).round(3)),
+    ]
+    lines += ["", *[f"- note: {n}" for n in design.notes]] if design.notes else []
+    return lines
 
 
 # ----------------------------------------------------------------------------------------
@@ -1238,6 +1417,17 @@ SUBCOMMANDS: list[Subcommand] = [
         description="Fit the baseline law, show its posterior predictive misfit per command "
         "x phi x frequency, try every other force term of the library, keep the ones PSIS-LOO "
         "clearly favours, and write OUT/diagnosis.json with a report and figures.",
+    ),
+    Subcommand(
+        "design",
+        "the next jumps that would separate laws a diagnosis could not tell apart",
+        _add_design_arguments,
+        _run_design,
+        description="For a tie of a diagnosis (laws whose paired ELPD difference is short of "
+        "the rule's margin), propose the jumps (command, phi, frequency, delay, trials) that "
+        "are expected to separate them, by the Kullback-Leibler separation of the two laws' "
+        "posterior predictive distributions, with the ELPD difference expected after them. "
+        "Writes DESIGN/design.json, plan.csv, candidates.csv and design.md.",
     ),
     Subcommand(
         "sbc",
