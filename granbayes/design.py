@@ -5,64 +5,77 @@ paired ELPD difference is short of the rule's margin, more than ``min_gain`` nat
 ``se_factor`` standard errors), :func:`design_jumps` proposes the jumps (command, volume
 fraction, frequency, delay) that are expected to separate them, and how many.
 
-The criterion (Box & Hill 1967, "Discrimination among mechanistic models",
+The criterion starts from Box & Hill (1967, "Discrimination among mechanistic models",
 *Technometrics* 9, 57-71): a new jump at setting ``x`` adds to the ELPD difference of the
 true law T over its rival R, in expectation, the Kullback-Leibler divergence of their
-posterior predictive distributions at ``x``,
+posterior predictive distributions at ``x``, and the variance of that log ratio adds to
+the variance of the paired sum. As the truth is not known, every ordered pair of the laws
+is a hypothesis ("T is true, R its rival"), whose new jumps come from T's present
+predictive distribution of a new measured jump (posterior draws of the law plus the
+fitted scatter, taken as normal).
 
-    D_TR(x) = E_{y ~ p_T(y | x, data)} [log p_T(y | x, data) - log p_R(y | x, data)],
+Jumps added one by one to the best setting by that criterion alone pile up at one setting,
+and a rival with free parameters then fits that setting by moving them: the separation
+it promised does not come (the first run of ``benchmarks/design_ties.py`` showed it).
+So the plan is judged after the posteriors have moved: each law's posterior draws are
+reweighted by their expected log-likelihood of the planned jumps (importance weights,
+per run: a per-phi law moves only at the volume fraction of the jumps), and the expected
+difference after the plan is
 
-and the variance of that log ratio, V_TR(x), adds to the variance of the paired sum. Both
-predictive distributions are those of a *new measured jump* (:func:`granbayes.predict`:
-posterior draws of the law, the fitted scatter and, for fits that integrate each bed's
-volume fraction, a new bed), summarised by their mean and variance and taken as normal,
-which gives D and V in closed form (Box & Hill's own approximation). As the truth is not
-known, every ordered pair of the laws is a hypothesis ("T is true, R its rival"); after
-``n_x`` new jumps at each ``x`` the hypothesis expects the difference
+    d_TR + [fit of the measured jumps, T moved - T now] - [the same for R]
+         + sum_x n_x E_{y ~ p_T(x)} [log p_T'(y | x) - log p_R'(y | x)],
 
-    d_TR + sum_x n_x D_TR(x)   with standard error   sqrt(se_TR^2 + sum_x n_x V_TR(x)),
+with the moved laws T', R' (normal approximations of their reweighted predictive
+distributions) and the variance ``se_TR^2 + sum_x n_x Var[...]``; ``d_TR`` and ``se_TR``
+are the paired difference and its SE on the data so far. A plan *settles* the tie in
+expectation when under every hypothesis that difference passes the rule (``min_gain``
+nats and ``se_factor`` SE). Jumps are added one at a time to the setting that most raises
+the worst hypothesis's ratio to the rule (a greedy maximin allocation), until the plan
+settles or the budget ``max_jumps`` is spent; a returns-diminishing setting (the rival
+catches up there) yields to another.
 
-where ``d_TR`` and ``se_TR`` are the paired difference and its SE on the data so far. A
-plan *settles* the tie in expectation when under every hypothesis that difference passes
-the rule (``min_gain`` nats and ``se_factor`` SE). Jumps are added one at a time to the
-setting that most raises the worst hypothesis's ratio to the rule (a greedy maximin
-allocation), until the plan settles or the budget ``max_jumps`` is spent.
-
-What this leaves out, and why it is measured rather than assumed: the posteriors move
-when the new jumps are fitted (a rival with freedom left can partly absorb them), so the
+What this leaves out, and why it is measured rather than assumed: the reweighting is an
+expected update (the planned jumps at their predicted mean, not a drawn data set), with
+the present draws only (a plan that moves a posterior far from them is flagged by
+``ess_share``), and ELPD on the measured jumps in-sample rather than leave-one-out; a
+fit that integrates each bed's volume fraction is designed at the written one. So the
 expected separation is an estimate of the gain, not a promise. How often designed jumps,
 simulated from the truth and fitted, break real ties, against the same number of jumps
 at settings drawn at random, is measured by ``benchmarks/design_ties.py`` (results in
-``benchmarks/results/design_ties/`` and the README). Only jump heights are designed
-(tracked jumps and intrusion tests are not proposed), and unidentified parameters are
-not a target (only ties between laws).
+``benchmarks/results/`` and the README). Only jump heights are designed (tracked jumps
+and intrusion tests are not proposed), and unidentified parameters are not a target
+(only ties between laws).
 """
 
 from __future__ import annotations
 
 import itertools
 import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.special import logsumexp
 
 from .commands import COMMAND_NAMES
-from .criticism import DiagnoseSettings, distinguished
+from .criticism import DiagnoseSettings
 from .forces import terms_of
-from .prediction import predict
+from .likelihood import Observations
 from .saved import SavedFit, as_saved_fit, load_fit
 
 __all__ = [
     "Design",
-    "allocate_jumps",
+    "LawDraws",
     "candidate_settings",
     "design_from_diagnosis",
     "design_jumps",
+    "law_draws",
     "load_tie",
     "normal_separation",
+    "plan_jumps",
     "save_tie_laws",
     "ties_of",
 ]
@@ -104,73 +117,6 @@ def normal_separation(
     # log ratio = const + e * delta / sr2 + e^2 (1 / (2 sr2) - 1 / (2 st2)), e ~ N(0, st2)
     var = (delta / sr2) ** 2 * st2 + 2.0 * st2**2 * (0.5 / sr2 - 0.5 / st2) ** 2
     return kl, var
-
-
-def allocate_jumps(
-    kl: np.ndarray,
-    var: np.ndarray,
-    diff_now: np.ndarray,
-    se_now: np.ndarray,
-    *,
-    max_jumps: int,
-    min_gain: float = 4.0,
-    se_factor: float = 2.0,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    """Greedy maximin allocation of new jumps over settings (module docstring).
-
-    Jumps are added one at a time, each to the setting that most raises the worst
-    hypothesis's ratio to the rule, ``min(d / min_gain, d / (se_factor * se))``, until
-    that ratio exceeds 1 (every hypothesis passes the rule in expectation) or
-    ``max_jumps`` are spent.
-
-    Parameters
-    ----------
-    kl, var : ndarray, shape (n_hypotheses, n_settings)
-        Expected log ratio truth/rival per jump and its variance, per hypothesis and
-        setting [nats, nats^2] (:func:`normal_separation`).
-    diff_now, se_now : ndarray, shape (n_hypotheses,)
-        Paired difference truth - rival and its SE on the data so far [nats].
-    max_jumps : int
-        Budget.
-    min_gain, se_factor : float
-        The rule: a difference counts when > ``min_gain`` nats and > ``se_factor`` SE.
-
-    Returns
-    -------
-    counts : ndarray of int, shape (n_settings,)
-        Jumps per setting.
-    diff, se : ndarray, shape (n_hypotheses,)
-        Expected difference after the jumps and its SE [nats].
-    settled : bool
-        Whether every hypothesis passes the rule in expectation.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> counts, diff, se, settled = allocate_jumps(
-    ...     np.array([[1.0, 0.1]]), np.array([[1.0, 0.1]]), np.zeros(1), np.zeros(1),
-    ...     max_jumps=20)
-    >>> counts.tolist(), diff.tolist(), settled  # 5 jumps: 5 > 4 nats and 5 > 2 sqrt(5)
-    ([5, 0], [5.0], True)
-    """
-    kl, var = np.atleast_2d(kl), np.atleast_2d(var)
-    mean, v = np.array(diff_now, dtype=float), np.square(np.asarray(se_now, dtype=float))
-    counts = np.zeros(kl.shape[1], dtype=int)
-
-    def ratio(m: np.ndarray, w: np.ndarray) -> np.ndarray:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            by_se = np.where(w > 0, m / (se_factor * np.sqrt(w)), np.sign(m) * np.inf)
-        return np.minimum(m / min_gain, by_se).min(axis=0)
-
-    settled = bool(ratio(mean[:, None], v[:, None])[0] > 1.0)
-    while not settled and counts.sum() < max_jumps:
-        score = ratio(mean[:, None] + kl, v[:, None] + var)
-        best = int(np.argmax(score))
-        counts[best] += 1
-        mean += kl[:, best]
-        v += var[:, best]
-        settled = bool(score[best] > 1.0)
-    return counts, mean, np.sqrt(v), settled
 
 
 def candidate_settings(
@@ -231,34 +177,6 @@ def candidate_settings(
     return pd.DataFrame(rows, columns=list(SETTINGS))
 
 
-def _predictive_moments(
-    fit: SavedFit, candidates: pd.DataFrame, n_draws: int, seed: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean and SD [mm] of a new measured jump at every candidate, and the failed share."""
-    mean = np.full(len(candidates), np.nan)
-    sd, failed = mean.copy(), mean.copy()
-    groups = candidates.assign(_d=candidates["delay_ms"].fillna(-1.0)).groupby(
-        ["command", "_d"], sort=False
-    )
-    for (command, delay), rows in groups:
-        for (phi, freq), cell in rows.groupby(["phi", "freq_hz"], sort=False):
-            p = predict(
-                fit,
-                command,
-                float(phi),
-                freq_hz=float(freq),
-                delay_ms=None if delay < 0 else float(delay),
-                n_draws=n_draws,
-                rng=seed,
-            )
-            y = p.height_mm[:, 0]
-            ok = np.isfinite(y)
-            mean[cell.index] = np.mean(y[ok]) if ok.any() else np.nan
-            sd[cell.index] = np.std(y[ok], ddof=1) if ok.sum() > 1 else np.nan
-            failed[cell.index] = 1.0 - ok.mean()
-    return mean, sd, failed
-
-
 @dataclass(frozen=True)
 class Design:
     """A plan of next jumps and the separation it is expected to give.
@@ -271,8 +189,9 @@ class Design:
     hypotheses : pandas.DataFrame
         One row per ordered pair of laws (``truth``, ``rival``): the paired ELPD
         difference truth - rival on the data so far (``elpd_diff_now``, ``se_now``), and
-        expected after the plan (``elpd_diff_expected``, ``se_expected``) [nats], and
-        ``settled`` (the rule passed in expectation).
+        expected after the plan (``elpd_diff_expected``, ``se_expected``) [nats],
+        ``ess_share`` (the smallest effective sample size of a reweighted posterior, as a
+        share of its draws) and ``settled`` (the rule passed in expectation).
     candidates : pandas.DataFrame
         Every setting considered: per law the predictive mean and SD of a new jump
         [mm] (``mean_mm[<law>]``, ``sd_mm[<law>]``), per hypothesis the expected
@@ -314,9 +233,10 @@ class Design:
             "rule": self.rule,
             "plan": records(self.plan),
             "hypotheses": records(self.hypotheses),
-            "method": "Box & Hill (1967) expected Kullback-Leibler separation of the laws' "
-            "posterior predictive distributions (normal approximation), greedy maximin "
-            "allocation of jumps over the hypotheses",
+            "method": "expected paired ELPD difference after the plan (Box & Hill 1967 "
+            "Kullback-Leibler separation of the laws' posterior predictive distributions, "
+            "normal approximation, with both posteriors reweighted by the planned jumps), "
+            "greedy maximin allocation of jumps over the hypotheses",
             "notes": list(self.notes),
         }
 
@@ -325,13 +245,280 @@ def _law_name(fit: SavedFit) -> str:
     return "+".join(fit.config.terms)
 
 
+@dataclass(frozen=True)
+class LawDraws:
+    """One law's posterior draws, as the design uses them.
+
+    Attributes
+    ----------
+    mean_mm : ndarray, shape (n_draws, n_settings)
+        Simulated height of a new jump at every candidate setting, per draw [mm].
+    var_mm2 : ndarray, shape (n_draws, n_settings)
+        Its noise variance [mm^2] (the scatter squared), per draw.
+    log_lik : ndarray, shape (n_draws, n_jumps)
+        Pointwise log-likelihood of the jumps measured so far, per draw [nats].
+    setting_run, jump_run : ndarray of int
+        Which run's draws (``per_phi``: the run of the volume fraction) each setting and
+        each measured jump belongs to; a new jump reweights the draws of its run only.
+    """
+
+    mean_mm: np.ndarray
+    var_mm2: np.ndarray
+    log_lik: np.ndarray
+    setting_run: np.ndarray
+    jump_run: np.ndarray
+
+    @property
+    def n_runs(self) -> int:
+        """Runs (posteriors updated independently)."""
+        return int(max(self.setting_run.max(initial=0), self.jump_run.max(initial=0)) + 1)
+
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance [mm, mm^2] of a new jump at every setting, all draws equal."""
+        mean = self.mean_mm.mean(axis=0)
+        return mean, (self.var_mm2 + self.mean_mm**2).mean(axis=0) - mean**2
+
+
+def _softmax_rows(logw: np.ndarray) -> np.ndarray:
+    w = np.exp(logw - logw.max(axis=1, keepdims=True))
+    return w / w.sum(axis=1, keepdims=True)
+
+
+def _expected_log_density(a, big_a, b, big_b):
+    """E log N(y; b, B) for y ~ N(a, A) [nats]."""
+    return -0.5 * np.log(2.0 * np.pi * big_b) - ((a - b) ** 2 + big_a) / (2.0 * big_b)
+
+
+def _log_ratio_variance(a, big_a, b1, big_b1, b2, big_b2):
+    """Var[log N(y; b1, B1) - log N(y; b2, B2)] for y ~ N(a, A) [nats^2]."""
+    lin = (a - b2) / big_b2 - (a - b1) / big_b1
+    quad = 0.5 / big_b2 - 0.5 / big_b1
+    return lin**2 * big_a + 2.0 * quad**2 * big_a**2
+
+
+class _Hypothesis:
+    """One law true, its rival fitted: the expected paired difference of a plan.
+
+    The data of the hypothesis come from the true law's present predictive distribution
+    (mean ``a``, variance ``A`` per setting). Planned jumps reweight the draws of both laws
+    by their expected log-likelihood of such jumps (each law's posterior after the jumps,
+    by importance weighting): the rival moves towards the data where it can, which the
+    separation of its moved predictive distribution, and its fit of the jumps measured so
+    far, then show.
+    """
+
+    def __init__(self, truth: LawDraws, rival: LawDraws, diff_now: float, se_now: float):
+        self.laws = (truth, rival)
+        self.a, self.big_a = truth.moments()
+        self.diff_now, self.var_now = float(diff_now), float(se_now) ** 2
+        # expected log-likelihood of one jump at each setting, per draw: (n_draws, n_settings)
+        self.gain = [
+            _expected_log_density(self.a, self.big_a, d.mean_mm, d.var_mm2) for d in self.laws
+        ]
+        self.old_now = [
+            logsumexp(d.log_lik, axis=0) - math.log(d.log_lik.shape[0]) for d in self.laws
+        ]
+        self.logw = [np.zeros((d.n_runs, d.mean_mm.shape[0])) for d in self.laws]
+
+    def evaluate(self, counts: np.ndarray, logw: list[np.ndarray]) -> tuple[float, float, float]:
+        """Expected difference truth - rival, its variance, and the smallest ESS share."""
+        moments, old, ess = [], [], 1.0
+        for d, lw, now in zip(self.laws, logw, self.old_now, strict=True):
+            w = _softmax_rows(lw)
+            ess = min(ess, float((1.0 / np.sum(w**2, axis=1)).min() / w.shape[1]))
+            ws = w[d.setting_run]  # (n_settings, n_draws)
+            mean = np.einsum("xs,sx->x", ws, d.mean_mm)
+            var = np.einsum("xs,sx->x", ws, d.var_mm2 + d.mean_mm**2) - mean**2
+            moments.append((mean, np.maximum(var, 1e-12)))
+            wj = w[d.jump_run]  # (n_jumps, n_draws)
+            with np.errstate(divide="ignore"):
+                fit_old = logsumexp(np.log(wj) + d.log_lik.T, axis=1)
+            old.append(float(np.sum(fit_old - now)))
+        (m_t, v_t), (m_r, v_r) = moments
+        per_jump = _expected_log_density(self.a, self.big_a, m_t, v_t) - _expected_log_density(
+            self.a, self.big_a, m_r, v_r
+        )
+        var = _log_ratio_variance(self.a, self.big_a, m_t, v_t, m_r, v_r)
+        diff = self.diff_now + old[0] - old[1] + float(counts @ per_jump)
+        return diff, self.var_now + float(counts @ var), ess
+
+    def with_jump(self, x: int) -> list[np.ndarray]:
+        """The draws' log-weights after one more planned jump at setting ``x``."""
+        out = []
+        for d, lw, g in zip(self.laws, self.logw, self.gain, strict=True):
+            lw = lw.copy()
+            lw[d.setting_run[x]] += g[:, x]
+            out.append(lw)
+        return out
+
+
+def plan_jumps(
+    draws: Mapping[str, LawDraws],
+    evidence: Mapping[tuple[str, str], tuple[float, float]],
+    *,
+    max_jumps: int,
+    min_gain: float = 4.0,
+    se_factor: float = 2.0,
+) -> tuple[np.ndarray, pd.DataFrame, bool, float]:
+    """Greedy maximin allocation of new jumps over settings (module docstring).
+
+    Jumps are added one at a time, each to the setting that most raises the worst
+    hypothesis's ratio to the rule, ``min(d / min_gain, d / (se_factor * se))`` with the
+    expected difference ``d`` and its SE after the planned jumps (both laws' posteriors
+    reweighted by the planned jumps), until the ratio exceeds 1 under every hypothesis or
+    ``max_jumps`` are spent.
+
+    Parameters
+    ----------
+    draws : mapping of str to LawDraws
+        The laws, on the same settings and measured jumps.
+    evidence : mapping
+        ``{(truth, rival): (diff, se)}``, one entry per hypothesis (usually every ordered
+        pair of the laws): the paired ELPD difference on the data so far and its SE
+        [nats].
+    max_jumps : int
+        Budget.
+    min_gain, se_factor : float
+        The rule.
+
+    Returns
+    -------
+    counts : ndarray of int, shape (n_settings,)
+        Jumps per setting.
+    hypotheses : pandas.DataFrame
+        Per ordered pair: ``truth``, ``rival``, ``elpd_diff_now``, ``se_now``,
+        ``elpd_diff_expected``, ``se_expected`` [nats], ``settled``, and ``ess_share``
+        (the smallest effective sample size of a reweighted posterior, as a share of the
+        draws: small values mean the plan asks more than the draws can represent) and
+        ``refuted_now`` (the data so far already reject the hypothesis by the rule: its
+        rival beats its truth; it is not designed for).
+    settled : bool
+        Whether every hypothesis not refuted passes the rule in expectation.
+    first_jump : float
+        The worst hypothesis's ratio to the rule before any jump (> 1: already settled).
+
+    Raises
+    ------
+    ValueError
+        If every hypothesis is refuted.
+    """
+    pairs = list(evidence)
+    hyps = [_Hypothesis(draws[t], draws[r], *evidence[(t, r)]) for t, r in pairs]
+    n_settings = next(iter(draws.values())).mean_mm.shape[1]
+    counts = np.zeros(n_settings)
+
+    def ratio(diff: float, var: float) -> float:
+        by_se = diff / (se_factor * math.sqrt(var)) if var > 0 else math.copysign(np.inf, diff)
+        return min(diff / min_gain, by_se)
+
+    state = [h.evaluate(counts, h.logw) for h in hyps]
+    now = {p: ratio(d, v) for p, (d, v, _) in zip(pairs, state, strict=True)}
+    # a hypothesis the data already reject by the rule (its rival beats its truth) is not
+    # designed for
+    refuted = [now.get((r, t), -np.inf) > 1.0 for t, r in pairs]
+    active = [i for i, out in enumerate(refuted) if not out]
+    if not active:
+        raise ValueError("every hypothesis is refuted by the data so far: no tie to settle")
+    first = min(now[pairs[i]] for i in active)
+    settled = first > 1.0
+    while not settled and counts.sum() < max_jumps:
+        best, best_score, best_state = -1, -np.inf, None
+        for x in range(n_settings):
+            trial = counts.copy()
+            trial[x] += 1
+            cand = []
+            for h in hyps:
+                logw = h.with_jump(x)
+                cand.append((logw, h.evaluate(trial, logw)))
+            score = min(ratio(*cand[i][1][:2]) for i in active)
+            if score > best_score:
+                best, best_score, best_state = x, score, cand
+        counts[best] += 1
+        for h, (logw, _) in zip(hyps, best_state, strict=True):
+            h.logw = logw
+        state = [ev for _, ev in best_state]
+        settled = best_score > 1.0
+    table = pd.DataFrame(
+        {
+            "truth": [t for t, _ in pairs],
+            "rival": [r for _, r in pairs],
+            "elpd_diff_now": [evidence[p][0] for p in pairs],
+            "se_now": [evidence[p][1] for p in pairs],
+            "elpd_diff_expected": [d for d, _, _ in state],
+            "se_expected": [math.sqrt(v) for _, v, _ in state],
+            "ess_share": [e for _, _, e in state],
+            "refuted_now": refuted,
+        }
+    )
+    table["settled"] = [
+        bool(d > min_gain and d > se_factor * s)
+        for d, s in zip(table["elpd_diff_expected"], table["se_expected"], strict=True)
+    ]
+    return counts.astype(int), table, bool(settled), float(first)
+
+
+def law_draws(
+    fit: SavedFit, candidates: pd.DataFrame, draw_index: np.ndarray
+) -> tuple[LawDraws, np.ndarray]:
+    """A fitted law's draws at the candidate settings and on its measured jumps.
+
+    Parameters
+    ----------
+    fit : SavedFit
+        A fit with jump heights.
+    candidates : pandas.DataFrame
+        ``command``, ``phi``, ``freq_hz``, ``delay_ms`` (NaN: the fit's setting).
+    draw_index : ndarray of int
+        Which posterior draws (flat (chain, draw) index; the same for every run).
+
+    Returns
+    -------
+    draws : LawDraws
+    failed : ndarray of float, shape (n_settings,)
+        Share of the draws whose jump did not finish at each setting (their simulated
+        height is replaced by the mean of the others).
+    """
+    cmd = fit.experiment.command
+    grid = candidates.assign(
+        delay_ms=candidates["delay_ms"].fillna(cmd.delay_ms),
+        amplitude_mm=cmd.amplitude_mm,
+        settle_periods=cmd.settle_periods,
+        height_mm=np.nan,
+    )
+    labels = list(fit.models())
+    runs = fit.runs_of(grid["phi"].to_numpy(float))
+    mean = np.full((len(draw_index), len(grid)), np.nan)
+    var = mean.copy()
+    for label in dict.fromkeys(runs):
+        cols = np.flatnonzero(np.array(runs) == label)
+        u = fit.draws(label)[draw_index]
+        m, sigma, _ = fit.model(label).mean_and_sigma(u, Observations.from_table(grid.iloc[cols]))
+        mean[:, cols], var[:, cols] = m, sigma**2
+    failed = (~np.isfinite(mean)).mean(axis=0)
+    fill = np.nanmean(np.where(np.isfinite(mean), mean, np.nan), axis=0)
+    mean = np.where(np.isfinite(mean), mean, fill)
+    ll = fit.datatree["log_likelihood"]["height_mm"]
+    ll = ll.transpose("chain", "draw", ...).values.reshape(-1, ll.sizes["jump"])[draw_index]
+    jump_runs = fit.runs_of(fit.observed()["phi"].to_numpy(float))
+    return (
+        LawDraws(
+            mean_mm=mean,
+            var_mm2=var,
+            log_lik=ll,
+            setting_run=np.array([labels.index(r) for r in runs]),
+            jump_run=np.array([labels.index(r) for r in jump_runs]),
+        ),
+        failed,
+    )
+
+
 def design_jumps(
     fits: Mapping[str, object] | Sequence[object],
     *,
     evidence: Mapping[tuple[str, str], tuple[float, float]] | None = None,
     candidates: pd.DataFrame | None = None,
     max_jumps: int = 60,
-    n_draws: int = 1000,
+    n_draws: int = 800,
     config: DiagnoseSettings | None = None,
     rng: np.random.Generator | int = 0,
 ) -> Design:
@@ -353,11 +540,11 @@ def design_jumps(
     max_jumps : int
         Budget: jumps added until the plan settles the tie, at most this many.
     n_draws : int
-        Posterior draws per law and setting for the predictive moments.
+        Posterior draws per law (the same (chain, draw) indices in every run).
     config : DiagnoseSettings, optional
         The rule's thresholds (``min_gain``, ``se_factor``; default ``DiagnoseSettings()``).
     rng : numpy.random.Generator or int
-        Seed of the predictive draws (the same draws of each law at every setting).
+        Seed of the draws' selection.
 
     Returns
     -------
@@ -372,7 +559,6 @@ def design_jumps(
     if max_jumps < 1:
         raise ValueError(f"max_jumps = {max_jumps}: must be >= 1")
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-    seed = int(rng.integers(2**31))
     items = fits.items() if isinstance(fits, Mapping) else [(None, f) for f in fits]
     saved = {}
     for name, f in items:
@@ -388,10 +574,16 @@ def design_jumps(
     if candidates is None:
         candidates = candidate_settings(first.observed())
     candidates = candidates.reset_index(drop=True)
-    moments = {law: _predictive_moments(s, candidates, n_draws, seed) for law, s in saved.items()}
-    usable = np.ones(len(candidates), dtype=bool)
-    for mean, sd, failed in moments.values():
-        usable &= np.isfinite(mean) & np.isfinite(sd) & (sd > 0) & (failed <= 0.05)
+    n_total = min(
+        s.datatree["posterior"].sizes["draw"] * s.datatree["posterior"].sizes["chain"]
+        for s in saved.values()
+    )
+    pick = np.sort(rng.choice(n_total, size=min(n_draws, n_total), replace=False))
+    draws, failed = {}, np.zeros(len(candidates))
+    for law, s in saved.items():
+        draws[law], f = law_draws(s, candidates, pick)
+        failed = np.maximum(failed, f)
+    usable = failed <= 0.05
     notes = []
     if not usable.all():
         notes.append(
@@ -400,57 +592,50 @@ def design_jumps(
         )
     if not usable.any():
         raise ValueError("no setting that every law predicts: widen the candidates")
-    table = candidates.copy()
-    for law, (mean, sd, _) in moments.items():
-        table[f"mean_mm[{law}]"] = mean
-        table[f"sd_mm[{law}]"] = sd
-    table = table[usable].reset_index(drop=True)
+    draws = {
+        law: LawDraws(
+            d.mean_mm[:, usable],
+            d.var_mm2[:, usable],
+            d.log_lik,
+            d.setting_run[usable],
+            d.jump_run,
+        )
+        for law, d in draws.items()
+    }
+    table = candidates[usable].reset_index(drop=True)
     evidence = dict(evidence) if evidence is not None else _loo_evidence(saved)
     pairs = list(itertools.permutations(laws, 2))
-    d0, se0, kl, var = [], [], [], []
+    full = {}
     for t, r in pairs:
         if (t, r) in evidence:
-            d, s = evidence[(t, r)]
+            full[(t, r)] = tuple(map(float, evidence[(t, r)]))
         elif (r, t) in evidence:
             d, s = evidence[(r, t)]
-            d = -d
+            full[(t, r)] = (-float(d), float(s))
         else:
             raise ValueError(f"no evidence for the pair ({t}, {r})")
+    moments = {law: d.moments() for law, d in draws.items()}
+    for law, (mean, var) in moments.items():
+        table[f"mean_mm[{law}]"] = mean
+        table[f"sd_mm[{law}]"] = np.sqrt(var)
+    for t, r in pairs:
         k, v = normal_separation(
-            table[f"mean_mm[{t}]"].to_numpy(),
-            table[f"sd_mm[{t}]"].to_numpy(),
-            table[f"mean_mm[{r}]"].to_numpy(),
-            table[f"sd_mm[{r}]"].to_numpy(),
+            moments[t][0], np.sqrt(moments[t][1]), moments[r][0], np.sqrt(moments[r][1])
         )
         table[f"kl[{t} vs {r}]"], table[f"kl_var[{t} vs {r}]"] = k, v
-        d0.append(float(d))
-        se0.append(float(s))
-        kl.append(k)
-        var.append(v)
-    d0, se0 = np.array(d0), np.array(se0)
-    kl, var = np.array(kl), np.array(var)  # (hypothesis, setting)
-    counts, mean_sum, se_sum, settled = allocate_jumps(
-        kl, var, d0, se0, max_jumps=max_jumps, min_gain=cfg.min_gain, se_factor=cfg.se_factor
+    table["worst_kl"] = table[[f"kl[{t} vs {r}]" for t, r in pairs]].min(axis=1)
+    counts, hyp, settled, first_ratio = plan_jumps(
+        draws, full, max_jumps=max_jumps, min_gain=cfg.min_gain, se_factor=cfg.se_factor
     )
-    table["worst_kl"] = kl.min(axis=0)
     plan = table.loc[counts > 0, list(SETTINGS)].assign(trials=counts[counts > 0])
     plan = plan.sort_values("trials", ascending=False, kind="stable").reset_index(drop=True)
-    hyp = pd.DataFrame(
-        {
-            "truth": [t for t, _ in pairs],
-            "rival": [r for _, r in pairs],
-            "elpd_diff_now": d0,
-            "se_now": se0,
-            "elpd_diff_expected": mean_sum,
-            "se_expected": se_sum,
-        }
-    )
-    hyp["settled"] = [
-        distinguished(m, s, cfg)
-        for m, s in zip(hyp["elpd_diff_expected"], hyp["se_expected"], strict=True)
-    ]
-    if all(distinguished(d, s, cfg) for d, s in zip(d0, se0, strict=True)):
+    if first_ratio > 1.0:
         notes.append("the data already separate the laws: no jump needed")
+    if (hyp["ess_share"] < 0.05).any():
+        notes.append(
+            "the plan reweights a posterior to fewer than 5% of its draws: its expected "
+            "difference is uncertain; measure part of it, refit and design again"
+        )
     return Design(
         plan=plan,
         hypotheses=hyp,

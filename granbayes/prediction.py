@@ -44,13 +44,11 @@ from . import stats
 from .commands import COMMAND_NAMES
 from .commands import SETTINGS as SETTING_COLUMNS
 from .likelihood import JumpModel, Observations
-from .saved import SavedFit, as_saved_fit
+from .saved import PHI_TOLERANCE, SavedFit, as_saved_fit
 
 __all__ = ["Prediction", "predict"]
 
 
-#: Tolerance when matching a requested volume fraction to a fitted one [-].
-PHI_TOLERANCE = 1e-9
 
 _SETTING_CHECKS = {
     "freq_hz": ("frequency [Hz]", False),
@@ -154,25 +152,6 @@ def _settings_grid(
     names = ["command", "phi", *SETTING_COLUMNS]
     grid = itertools.product(commands, phis, *(columns[n] for n in SETTING_COLUMNS))
     return pd.DataFrame(list(grid), columns=names)
-
-
-def _run_of_phi(saved: SavedFit, phis: np.ndarray) -> list[str]:
-    """The run whose posterior predicts each volume fraction (``per_phi``: the fitted one)."""
-    labels = list(saved.models())
-    if saved.config.phi_mode == "quadratic":
-        return [labels[0]] * len(phis)
-    fitted = saved.phis
-    out = []
-    for p in phis:
-        i = int(np.argmin(np.abs(fitted - p)))
-        if abs(fitted[i] - p) > PHI_TOLERANCE:
-            raise ValueError(
-                f"phi = {p:g}: this per_phi fit has a posterior only at the fitted volume "
-                f"fractions phi = {', '.join(f'{f:g}' for f in fitted)}; predict at one of "
-                "them, or fit with phi_mode='quadratic' to predict between them"
-            )
-        out.append(labels[i])
-    return out
 
 
 def _interpolation(
@@ -286,7 +265,7 @@ def predict(
     }
     grid = _settings_grid(saved, command, phi, settings)
     phis = grid["phi"].to_numpy(float)
-    labels = _run_of_phi(saved, phis)
+    labels = saved.runs_of(phis)
     if saved.config.phi_mode == "per_phi":  # snap to the fitted values
         grid["phi"] = [saved.phis[np.argmin(np.abs(saved.phis - p))] for p in phis]
         phis = grid["phi"].to_numpy(float)

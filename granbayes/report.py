@@ -511,7 +511,9 @@ def _tie_lines(sel: Mapping) -> list[str]:
             "and commands, and more repeats per cell separate them)."
             if rate_pair
             else "."
-        ),
+        )
+        + " `granbayes design DIR --diagnosis OUT --out NEXT` proposes the jumps expected to "
+        "separate them, and how many (the fits of both laws are in `laws/`).",
     ]
 
 

@@ -20,6 +20,7 @@ draws are saved) and the sampler's random state; a saved fit cannot be resumed (
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,6 +45,9 @@ __all__ = ["SavedFit", "as_saved_fit", "load_fit"]
 _REQUIRED_ATTRS = ("config", "priors", "experiment", "parameters", "runs")
 #: Groups a granbayes fit's DataTree must have.
 _REQUIRED_GROUPS = ("posterior", "log_likelihood", "observed_data")
+
+#: Tolerance when matching a volume fraction to a fitted one [-].
+PHI_TOLERANCE = 1e-9
 
 
 def _json_attr(dt: xr.DataTree, name: str) -> object:
@@ -265,6 +269,42 @@ class SavedFit:
         if label not in models:
             raise KeyError(f"no run {label!r}; the fit's runs are {', '.join(models)}")
         return models[label]
+
+    def runs_of(self, phis: Sequence[float]) -> list[str]:
+        """The run whose posterior predicts each volume fraction.
+
+        Parameters
+        ----------
+        phis : sequence of float
+            Volume fractions [-].
+
+        Returns
+        -------
+        list of str
+            Run labels: the one run of a ``quadratic`` fit; for a ``per_phi`` fit, the run
+            of each fitted volume fraction.
+
+        Raises
+        ------
+        ValueError
+            For a ``per_phi`` fit, a volume fraction that was not fitted (naming those that
+            were).
+        """
+        labels = list(self.models())
+        if self.config.phi_mode == "quadratic":
+            return [labels[0]] * len(phis)
+        fitted = self.phis
+        out = []
+        for p in phis:
+            i = int(np.argmin(np.abs(fitted - p)))
+            if abs(fitted[i] - p) > PHI_TOLERANCE:
+                raise ValueError(
+                    f"phi = {p:g}: this per_phi fit has a posterior only at the fitted volume "
+                    f"fractions phi = {', '.join(f'{f:g}' for f in fitted)}; predict at one of "
+                    "them, or fit with phi_mode='quadratic' to predict between them"
+                )
+            out.append(labels[i])
+        return out
 
     def draws(self, label: str) -> np.ndarray:
         """The posterior draws of run ``label`` in its model's sampling coordinates.

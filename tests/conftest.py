@@ -88,7 +88,13 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     order. pytest-xdist hands the tests out one at a time in this order, so the two workers
     end together instead of one running a minute-long test while the other idles (longest
     first is the classic greedy rule for two machines). A stable sort: within each class
-    the file order, and so the sharing of module fixtures, is kept."""
+    the file order, and so the sharing of module fixtures, is kept.
+
+    With ``--dist loadgroup`` (``make test``) xdist puts groups of several tests before
+    single ones: the installed-wheel tests (one group, ~1 min, compiling the kernel in
+    their own environment) go to one worker while the other compiles the kernel for the
+    first diagnosis, so that the second worker finds the compiled kernel in numba's cache
+    instead of compiling it a second time (~45 s on a fresh clone)."""
 
     def rank(item: pytest.Item) -> int:
         if item.get_closest_marker("ci_subset"):

@@ -31,6 +31,7 @@ from granbayes.criticism import (
     rivals,
     verdict,
 )
+from granbayes.design import load_tie, save_tie_laws
 from granbayes.report import write_diagnosis_report
 from granbayes.stats import CELL_KEYS, describe_cell, misfit_threshold, residual_table
 from granbayes.synthetic import write_experiment
@@ -802,6 +803,19 @@ def test_drag_and_viscous_compared_paired_and_ties_reported(tmp_path: Path) -> N
     write_diagnosis_report(d.to_json(), d.selected.datatree, tmp_path)
     report = (tmp_path / "report.md").read_text()
     assert ("Not distinguished on these data" in report) == bool(expected)
+    assert ("granbayes design" in report) == bool(expected)
+    # the fits of both laws of every tie are saved for granbayes design, and read back
+    written = save_tie_laws(d, tmp_path)
+    assert sorted(p.name for p in written) == (
+        sorted(["depth+drag.nc", "depth+viscous.nc"]) if expected else []
+    )
+    if expected:
+        tie, fits = load_tie(tmp_path)
+        assert tie["laws"] == (("depth", chosen), ("depth", other.term))
+        assert {n: f.config.terms for n, f in fits.items()} == {
+            "depth+drag": ("depth", "drag"),
+            "depth+viscous": ("depth", "viscous"),
+        }
     print(f"{chosen} vs {other.term}: {other.vs_selected:+.2f} ± {other.vs_selected_se:.2f}")
 
 

@@ -22,10 +22,11 @@ from granbayes import Experiment
 from granbayes import datatree as gdt
 from granbayes.cli import EXIT_INPUT, EXIT_OK, main
 from granbayes.design import (
-    allocate_jumps,
+    LawDraws,
     candidate_settings,
     design_jumps,
     normal_separation,
+    plan_jumps,
     save_tie_laws,
     ties_of,
 )
@@ -33,6 +34,9 @@ from granbayes.fitting import FitSettings, fit
 from granbayes.sampler import SamplerSettings
 from granbayes.synthetic import write_experiment
 from granbayes.testing import synthetic_jumps
+
+#: One worker for the module: its tiny fits (a module fixture) are made once.
+pytestmark = pytest.mark.xdist_group("design")
 
 TINY = SamplerSettings(n_walkers=8, n_ensembles=2, check_every=50, max_steps=100, n_draws=30)
 
@@ -57,40 +61,84 @@ def test_separation_per_jump_is_the_integrated_log_ratio(mt, st, mr, sr) -> None
         assert float(kl) == 0.0 and float(var) == 0.0
 
 
-def test_jumps_go_where_the_laws_differ_most_and_stop_when_settled() -> None:
-    """One hypothesis, settings separating by 0.2, 1 and 0.5 nats per jump (variance =
-    KL): the rule needs n KL > 4 and n KL > 2 sqrt(n KL), i.e. 5 jumps of the best."""
-    kl = np.array([[0.2, 1.0, 0.5]])
-    counts, diff, se, settled = allocate_jumps(kl, kl, np.zeros(1), np.zeros(1), max_jumps=50)
-    assert counts.tolist() == [0, 5, 0]
-    assert settled and diff[0] == pytest.approx(5.0) and se[0] == pytest.approx(np.sqrt(5.0))
+def _fixed(means: list[float], sd: float = 1.0, n_draws: int = 4) -> LawDraws:
+    """A law without parameter uncertainty: every draw predicts ``means`` [mm]."""
+    m = np.tile(np.asarray(means, dtype=float), (n_draws, 1))
+    return LawDraws(
+        mean_mm=m,
+        var_mm2=np.full_like(m, sd**2),
+        log_lik=np.zeros((n_draws, 1)),
+        setting_run=np.zeros(m.shape[1], dtype=int),
+        jump_run=np.zeros(1, dtype=int),
+    )
+
+
+def _evidence(diff: float, se: float) -> dict:
+    return {("T", "R"): (diff, se), ("R", "T"): (-diff, se)}
+
+
+def test_without_parameter_uncertainty_jumps_add_their_separation() -> None:
+    """Laws known exactly (every draw alike: nothing moves when jumps are added), unit
+    scatter, means 0 and 1, 2 and 0.5 mm apart at three settings: the best setting
+    separates by 2 nats per jump with variance 4 under either hypothesis, so the rule
+    (> 4 nats and > 2 SE from a tie at 0 +- 0) needs 5 jumps there; the first hypothesis
+    then expects 10 +- sqrt(20) nats."""
+    draws = {"T": _fixed([0.0, 0.0, 0.0]), "R": _fixed([1.0, 2.0, 0.5])}
+    counts, hyp, settled, first = plan_jumps(draws, _evidence(0.0, 0.0), max_jumps=50)
+    assert counts.tolist() == [0, 5, 0] and settled and first == 0.0
+    row = hyp.set_index(["truth", "rival"]).loc[("T", "R")]
+    assert row["elpd_diff_expected"] == pytest.approx(10.0)
+    assert row["se_expected"] == pytest.approx(np.sqrt(20.0))
+    assert row["ess_share"] == pytest.approx(1.0)
+
+
+def test_a_rival_that_can_move_is_not_credited_with_the_separation_it_promises() -> None:
+    """The rival's draws disagree at setting 0 (half predict 0 mm, as the truth; half
+    10 mm) but all predict 1.5 mm at setting 1. Judged before the posteriors move, setting
+    0 looks best (1.63 against 1.13 nats per jump: its predictive spread); but one jump
+    there gives the weight to the rival's draws that agree with the truth, and the
+    separation at setting 0 vanishes. The plan goes to setting 1, where the rival cannot
+    follow: 8 jumps (8 x 1.125 > 4 nats and > 2 SE, SE = 1.5 sqrt(8))."""
+    n = 400
+    rival_m = np.column_stack([np.repeat([0.0, 10.0], n // 2), np.full(n, 1.5)])
+    rival = LawDraws(
+        mean_mm=rival_m,
+        var_mm2=np.ones_like(rival_m),
+        log_lik=np.zeros((n, 1)),
+        setting_run=np.zeros(2, dtype=int),
+        jump_run=np.zeros(1, dtype=int),
+    )
+    draws = {"T": _fixed([0.0, 0.0], n_draws=n), "R": rival}
+    kl_first = [float(normal_separation(0.0, 1.0, m.mean(), np.sqrt(1 + m.var()))[0])
+                for m in rival_m.T]  # fmt: skip
+    assert kl_first[0] > kl_first[1]  # the naive criterion prefers setting 0
+    evidence = {("T", "R"): (0.0, 0.0)}
+    counts, hyp, settled, _ = plan_jumps(draws, evidence, max_jumps=40)
+    assert settled and counts.tolist() == [0, 8]
+    assert hyp.loc[0, "elpd_diff_expected"] == pytest.approx(8 * 1.125)
 
 
 def test_every_hypothesis_is_served() -> None:
-    """Two hypotheses (either law true), each separated by a different setting: the plan
-    uses both, and each hypothesis passes the rule in expectation."""
-    kl = np.array([[1.0, 0.0, 0.3], [0.0, 1.0, 0.3]])
-    counts, diff, se, settled = allocate_jumps(
-        kl, kl, np.array([2.0, -2.0]), np.array([1.0, 1.0]), max_jumps=100
-    )
-    assert settled
-    assert counts[0] > 0 and counts[1] > 0
-    assert np.all(diff > 4.0) and np.all(diff > 2.0 * se)
-    assert diff.tolist() == pytest.approx((np.array([2.0, -2.0]) + kl @ counts).tolist())
+    """Either law may be the truth; a setting where only the truth's scatter is wide
+    separates one way only: the plan must pass the rule under both hypotheses."""
+    draws = {"T": _fixed([0.0, 0.0], sd=1.0), "R": _fixed([3.0, 0.0], sd=0.5)}
+    _, hyp, settled, _ = plan_jumps(draws, _evidence(2.0, 1.0), max_jumps=100)
+    assert settled and hyp["settled"].all()
+    assert (hyp["elpd_diff_expected"] > 4.0).all()
+    assert (hyp["elpd_diff_expected"] > 2.0 * hyp["se_expected"]).all()
 
 
 def test_an_impossible_tie_spends_the_budget_and_says_so() -> None:
-    kl = np.zeros((2, 3))
-    counts, diff, _, settled = allocate_jumps(kl, kl + 0.1, np.zeros(2), np.ones(2), max_jumps=12)
+    draws = {"T": _fixed([1.0, 2.0]), "R": _fixed([1.0, 2.0])}
+    counts, hyp, settled, _ = plan_jumps(draws, _evidence(0.0, 1.0), max_jumps=12)
     assert counts.sum() == 12 and not settled
-    assert diff.tolist() == [0.0, 0.0]
+    assert hyp["elpd_diff_expected"].tolist() == [0.0, 0.0]
 
 
 def test_separated_data_need_no_jump() -> None:
-    counts, _, _, settled = allocate_jumps(
-        np.ones((2, 2)), np.ones((2, 2)), np.array([9.0, 9.0]), np.ones(2), max_jumps=5
-    )
-    assert settled and counts.sum() == 0
+    draws = {"T": _fixed([0.0]), "R": _fixed([1.0])}
+    counts, _, settled, first = plan_jumps(draws, _evidence(9.0, 1.0), max_jumps=5)
+    assert settled and counts.sum() == 0 and first > 1.0
 
 
 def test_candidates_stay_within_what_was_measured() -> None:
@@ -190,13 +238,15 @@ def test_a_design_of_two_fitted_laws(tied) -> None:
     assert d.n_jumps == d.plan["trials"].sum()
     cand = d.candidates.set_index(["command", "phi", "freq_hz"])
     hyp = d.hypotheses.set_index(["truth", "rival"])
-    for (t, r), now in (((("drag", "viscous")), 1.5), ((("viscous", "drag")), -1.5)):
-        expected = now + sum(
+    for (t, r), now in ((("drag", "viscous"), 1.5), (("viscous", "drag"), -1.5)):
+        assert hyp.loc[(t, r), "elpd_diff_now"] == now
+        assert 0.0 < hyp.loc[(t, r), "ess_share"] <= 1.0
+        # the planned jumps add what their settings separate, less what the rival catches up
+        first = sum(
             row.trials * cand.loc[(row.command, row.phi, row.freq_hz), f"kl[{t} vs {r}]"]
             for row in d.plan.itertuples()
         )
-        assert hyp.loc[(t, r), "elpd_diff_now"] == now
-        assert hyp.loc[(t, r), "elpd_diff_expected"] == pytest.approx(expected)
+        assert hyp.loc[(t, r), "elpd_diff_expected"] <= now + first + 1e-9
     assert (d.candidates["worst_kl"] >= 0).all()
     assert json.loads(json.dumps(d.to_json()))["laws"] == ["drag", "viscous"]
     again = design_jumps(fits, evidence={("drag", "viscous"): (1.5, 2.5)}, max_jumps=15, n_draws=60)

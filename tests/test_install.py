@@ -30,9 +30,11 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-#: One module fixture (the installed wheel) for all its tests; the demo and fit take a minute
-#: (a cold numba compilation in the new environment): run first (tests/conftest.py).
-pytestmark = pytest.mark.long
+#: One module fixture (the installed wheel) for all its tests, so one xdist group (one
+#: worker); the demo and fit take a minute, most of it the cold numba compilation of the
+#: new environment, which no cache of the source tree can spare. Run first
+#: (tests/conftest.py), beside the other worker's first compilation.
+pytestmark = [pytest.mark.long, pytest.mark.xdist_group("install")]
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCES = ("pyproject.toml", "README.md", "LICENSE", "granbayes")
