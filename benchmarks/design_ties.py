@@ -11,10 +11,10 @@ candidates. Both sets are simulated from the truth by the oracle and both laws r
 on the data plus each set (``granbayes.calibration.design_tie_case``). A Dask campaign
 (resumable).
 
-Writes ``benchmarks/results/design_ties.csv`` and ``.md``: among the ties, how often the
-rule then separates the laws the right way, designed against random, with exact
-(Clopper-Pearson) 95% intervals, and how the design's expected difference compares with
-the one reached.
+Writes ``benchmarks/results/design_ties_<kind>_<rival>[_max<N>].csv`` and ``.md`` (``_max<N>``
+for a budget other than 40): among the ties, how often the rule then separates the laws
+the right way, designed against random, with exact (Clopper-Pearson) 95% intervals, and
+how the design's expected difference compares with the one reached.
 
 Usage: ``python benchmarks/design_ties.py [--kind drag] [--rival viscous] [--cases 20]
 [--max-jumps 40] [--workers 2] [--out DIR] [--resume] [--finished-only]``
@@ -76,10 +76,11 @@ def main(argv: list[str] | None = None) -> int:
         folder = args.out if args.out.exists() else Path(f"{args.out}.partial")
         done = [json.loads(f.read_text()) for f in sorted(folder.glob("tasks/*.json"))]
         table = pd.DataFrame([r for d in done if d["status"] == "ok" for r in d["rows"]])
-        note = (
-            f"A STOPPED study: {table['index'].nunique()} of {len(tasks)} cases finished; "
-            "the others are not counted."
-        )
+        if table["index"].nunique() < len(tasks):
+            note = (
+                f"A STOPPED study: {table['index'].nunique()} of {len(tasks)} cases finished; "
+                "the others are not counted."
+            )
     else:
         res = run_campaign(
             tasks,
@@ -92,7 +93,9 @@ def main(argv: list[str] | None = None) -> int:
         )
         table = res.results
     table = table.sort_values(["index", "arm"], kind="stable")
-    name = f"design_ties_{args.kind}_{args.rival}"
+    name = f"design_ties_{args.kind}_{args.rival}" + (
+        f"_max{args.max_jumps}" if args.max_jumps != 40 else ""
+    )
     (HERE / "results").mkdir(exist_ok=True)
     table.to_csv(HERE / "results" / f"{name}.csv", index=False)
     (HERE / "results" / f"{name}.md").write_text(summary(table, args, note) + "\n")
@@ -124,6 +127,22 @@ def summary(table: pd.DataFrame, args: argparse.Namespace, note: str) -> str:
             }
         )
     designed = arms[arms["arm"] == "designed"]
+    promise = []
+    for said, rows_ in designed.groupby("design_settled", sort=False):
+        k, n = int(rows_["settled"].sum()), len(rows_)
+        lo, hi = clopper_pearson(k, n)
+        promise.append(
+            {
+                "the design expected": "to settle the tie"
+                if said
+                else f"not to settle it within {args.max_jumps} jumps",
+                "ties": n,
+                "settled": k,
+                "95% CI": f"[{lo:.2f}, {hi:.2f}]",
+                "median expected diff [nats]": float(rows_["expected_diff"].median()),
+                "median reached [nats]": float(rows_["elpd_diff"].median()),
+            }
+        )
     cols = [
         "index",
         "truth_effect",
@@ -160,6 +179,10 @@ def summary(table: pd.DataFrame, args: argparse.Namespace, note: str) -> str:
             "oracle, both laws refitted.",
             "",
             markdown_table(pd.DataFrame(rows)),
+            "",
+            "Does the design know when its plan will do? (designed arm, by what it expected):",
+            "",
+            markdown_table(pd.DataFrame(promise)) if promise else "",
             "",
             "Expected against reached (designed arm): the design's expected difference "
             f"truth - rival had median {designed['expected_diff'].median():.1f} nats; the "

@@ -1038,9 +1038,12 @@ def _design_lines(tie: dict, design, record: dict) -> list[str]:
         markdown_table(design.plan),
         "",
         f"{design.n_jumps} jumps. Expected paired ELPD difference after them, under each "
-        "hypothesis (Box & Hill 1967: the Kullback-Leibler separation of the two laws' "
-        "predictive distributions of a new jump, normal approximation; the posteriors will "
-        "move when the jumps are fitted, so this is an estimate, not a promise):",
+        "hypothesis (which law is true): the separation of the two laws' predictive "
+        "distributions of a new jump (Box & Hill 1967, normal approximation) after both "
+        "posteriors have been reweighted by the planned jumps, so that a rival that can "
+        "move towards them is not credited with the separation it first promises; an "
+        "estimate, not a promise (`ess_share`: the smallest share of a posterior's draws "
+        "left effective by the reweighting):",
         "",
         markdown_table(design.hypotheses.round(2)),
         "",
