@@ -1160,7 +1160,6 @@ def design_tie_case(
     rows = [row("before", fits, 0, t0)]
     if rows[0]["settled"] or rows[0]["wrong_way"]:
         return rows  # not a tie: nothing to design
-    t0 = time.perf_counter()
     grid = candidate_settings(
         case.table, phis=case.truth["phis"], freqs_hz=_FREQS_HZ, delays_ms=[np.nan]
     )
@@ -1174,39 +1173,23 @@ def design_tie_case(
     )
     hyp = design.hypotheses.set_index(["truth", "rival"])
     expected = hyp.loc[(kind, rival)]
-    plan = design.plan
-    n_new = int(plan["trials"].sum())
-    designed = pd.concat(
-        [case.table, extra_jumps(case, plan, np.random.default_rng(noise_seed))],
-        ignore_index=True,
-    )
-    rows.append(
-        row(
-            "designed",
-            fit_both(designed),
-            n_new,
-            t0,
-            expected_diff=float(expected["elpd_diff_expected"]),
-            expected_se=float(expected["se_expected"]),
-            design_settled=design.settled,
-            plan=json.dumps(plan.to_dict("records")),
-        )
-    )
-    t0 = time.perf_counter()
+    n_new = int(design.plan["trials"].sum())
     pick = np.random.default_rng(random_seed).integers(len(grid), size=n_new)
     counts = np.bincount(pick, minlength=len(grid))
-    random_plan = grid.assign(trials=counts)[counts > 0]
-    control = pd.concat(
-        [case.table, extra_jumps(case, random_plan, np.random.default_rng(noise_seed))],
-        ignore_index=True,
-    )
-    rows.append(
-        row(
-            "random",
-            fit_both(control),
-            n_new,
-            t0,
-            plan=json.dumps(random_plan.to_dict("records")),
-        )
-    )
+    arms = {
+        "designed": (
+            design.plan,
+            {
+                "expected_diff": float(expected["elpd_diff_expected"]),
+                "expected_se": float(expected["se_expected"]),
+                "design_settled": design.settled,
+            },
+        ),
+        "random": (grid.assign(trials=counts)[counts > 0], {}),
+    }
+    for arm, (plan, extra) in arms.items():
+        t0 = time.perf_counter()
+        new = extra_jumps(case, plan, np.random.default_rng(noise_seed))
+        fits = fit_both(pd.concat([case.table, new], ignore_index=True))
+        rows.append(row(arm, fits, n_new, t0, **extra, plan=json.dumps(plan.to_dict("records"))))
     return rows

@@ -931,11 +931,11 @@ def _add_design_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--draws",
         type=int,
-        default=1000,
-        help="posterior draws per law and setting (default 1000)",
+        default=800,
+        help="posterior draws per law (default 800)",
     )
     parser.add_argument(
-        "--seed", type=int, default=0, help="seed of the predictive draws (default 0)"
+        "--seed", type=int, default=0, help="seed of the draws' selection (default 0)"
     )
     parser.add_argument("--quiet", action="store_true", help="do not print the plan")
 

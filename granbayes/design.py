@@ -795,7 +795,7 @@ def design_from_diagnosis(
     tie: int = 0,
     candidates: pd.DataFrame | None = None,
     max_jumps: int = 60,
-    n_draws: int = 1000,
+    n_draws: int = 800,
     rng: np.random.Generator | int = 0,
 ) -> tuple[dict, Design]:
     """:func:`design_jumps` for a tie of a saved diagnosis (``granbayes design``).

@@ -49,7 +49,6 @@ from .saved import PHI_TOLERANCE, SavedFit, as_saved_fit
 __all__ = ["Prediction", "predict"]
 
 
-
 _SETTING_CHECKS = {
     "freq_hz": ("frequency [Hz]", False),
     "amplitude_mm": ("amplitude [mm]", False),

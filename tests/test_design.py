@@ -292,3 +292,29 @@ def test_cli_design_refuses_with_one_message(tied, tmp_path: Path, capsys) -> No
     )
     assert "no diagnosis.json" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_the_study_s_extra_jumps_come_from_the_oracle() -> None:
+    """``granbayes.calibration.extra_jumps``: a plan's jumps of a study case, simulated
+    by the oracle at the plan's settings (the case's truth), with the case's scatter."""
+    from granbayes.calibration import extra_jumps, make_case
+    from granbayes.testing import simulate_height_scipy
+
+    case = make_case("drag", 3)
+    plan = pd.DataFrame(
+        {"command": ["stutter", "single"], "phi": [case.truth["phis"][0]] * 2,
+         "freq_hz": [7.0, 12.0], "delay_ms": [np.nan, np.nan], "trials": [2, 1]}
+    )  # fmt: skip
+    new = extra_jumps(case, plan, np.random.default_rng(0))
+    assert len(new) == 3 and set(new.columns) == set(case.table.columns)
+    assert new["trial"].tolist() == [case.truth["trials"] + i for i in (1, 2, 1)]
+    assert new["source"].str.startswith("synthetic").all()
+    k0, k1, k2 = case.truth["k_law"]
+    x = plan["phi"][0] - 0.612
+    law = {"k": k0 + k1 * x + k2 * x * x, **case.truth["effect"]}
+    exp = case.experiment.replace(freq_hz=12.0)
+    true = simulate_height_scipy("single", plan["phi"][0], law, exp)
+    noise = np.random.default_rng(0).normal(0.0, case.truth["sigma_mm"], 3)
+    assert new["height_mm"].iloc[2] == pytest.approx(true + noise[2], abs=1e-9)
+    with pytest.raises(ValueError, match="only library truths"):
+        extra_jumps(make_case("janssen_saturation", 3), plan, np.random.default_rng(0))
