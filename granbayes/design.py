@@ -279,11 +279,6 @@ class LawDraws:
         return mean, (self.var_mm2 + self.mean_mm**2).mean(axis=0) - mean**2
 
 
-def _softmax_rows(logw: np.ndarray) -> np.ndarray:
-    w = np.exp(logw - logw.max(axis=1, keepdims=True))
-    return w / w.sum(axis=1, keepdims=True)
-
-
 def _expected_log_density(a, big_a, b, big_b):
     """E log N(y; b, B) for y ~ N(a, A) [nats]."""
     return -0.5 * np.log(2.0 * np.pi * big_b) - ((a - b) ** 2 + big_a) / (2.0 * big_b)
@@ -294,6 +289,61 @@ def _log_ratio_variance(a, big_a, b1, big_b1, b2, big_b2):
     lin = (a - b2) / big_b2 - (a - b1) / big_b1
     quad = 0.5 / big_b2 - 0.5 / big_b1
     return lin**2 * big_a + 2.0 * quad**2 * big_a**2
+
+
+class _LawState:
+    """One law's draws under a plan: log-weights per run and what they give, cached.
+
+    A planned jump reweights the draws of its run only, so trying a jump recomputes that
+    run's settings and measured jumps alone.
+    """
+
+    def __init__(self, d: LawDraws, gain: np.ndarray):
+        self.d, self.gain = d, gain  # gain: expected log-likelihood of one jump, (S, X)
+        n_draws = d.mean_mm.shape[0]
+        self.now = logsumexp(d.log_lik, axis=0) - math.log(n_draws)
+        self.second = d.var_mm2 + d.mean_mm**2
+        self.cols = [np.flatnonzero(d.setting_run == r) for r in range(d.n_runs)]
+        self.jumps = [np.flatnonzero(d.jump_run == r) for r in range(d.n_runs)]
+        self.logw = np.zeros((d.n_runs, n_draws))
+        self.mean = np.zeros(d.mean_mm.shape[1])
+        self.var = np.zeros(d.mean_mm.shape[1])
+        self.fit = np.zeros(d.n_runs)
+        self.ess = np.ones(d.n_runs)
+        for r in range(d.n_runs):
+            self.commit(r, self.logw[r])
+
+    def _run(self, r: int, logw: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Moments at run ``r``'s settings, its measured jumps' fit change, its ESS share."""
+        w = np.exp(logw - logw.max())
+        w /= w.sum()
+        cols, jumps = self.cols[r], self.jumps[r]
+        mean = w @ self.d.mean_mm[:, cols]
+        var = np.maximum(w @ self.second[:, cols] - mean**2, 1e-12)
+        with np.errstate(divide="ignore"):
+            fit = logsumexp(np.log(w)[:, None] + self.d.log_lik[:, jumps], axis=0)
+        return mean, var, float(np.sum(fit - self.now[jumps])), float(1.0 / np.sum(w**2) / w.size)
+
+    def commit(self, r: int, logw: np.ndarray) -> None:
+        """Make ``logw`` run ``r``'s log-weights."""
+        self.logw[r] = logw
+        self.mean[self.cols[r]], self.var[self.cols[r]], self.fit[r], self.ess[r] = self._run(
+            r, logw
+        )
+
+    def current(self) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Moments at every setting, the fit change of all measured jumps, the least ESS."""
+        return self.mean, self.var, float(self.fit.sum()), float(self.ess.min())
+
+    def trial(self, x: int) -> tuple[tuple, tuple[int, np.ndarray]]:
+        """One more jump at setting ``x``: what it gives (as :meth:`current`), and its change."""
+        r = int(self.d.setting_run[x])
+        logw = self.logw[r] + self.gain[:, x]
+        mean_r, var_r, fit_r, ess_r = self._run(r, logw)
+        mean, var = self.mean.copy(), self.var.copy()
+        mean[self.cols[r]], var[self.cols[r]] = mean_r, var_r
+        ess = min(ess_r, float(np.delete(self.ess, r).min(initial=1.0)))
+        return (mean, var, float(self.fit.sum() - self.fit[r] + fit_r), ess), (r, logw)
 
 
 class _Hypothesis:
@@ -308,48 +358,36 @@ class _Hypothesis:
     """
 
     def __init__(self, truth: LawDraws, rival: LawDraws, diff_now: float, se_now: float):
-        self.laws = (truth, rival)
         self.a, self.big_a = truth.moments()
         self.diff_now, self.var_now = float(diff_now), float(se_now) ** 2
-        # expected log-likelihood of one jump at each setting, per draw: (n_draws, n_settings)
-        self.gain = [
-            _expected_log_density(self.a, self.big_a, d.mean_mm, d.var_mm2) for d in self.laws
+        self.states = [
+            _LawState(d, _expected_log_density(self.a, self.big_a, d.mean_mm, d.var_mm2))
+            for d in (truth, rival)
         ]
-        self.old_now = [
-            logsumexp(d.log_lik, axis=0) - math.log(d.log_lik.shape[0]) for d in self.laws
-        ]
-        self.logw = [np.zeros((d.n_runs, d.mean_mm.shape[0])) for d in self.laws]
 
-    def evaluate(self, counts: np.ndarray, logw: list[np.ndarray]) -> tuple[float, float, float]:
+    def evaluate(self, counts: np.ndarray, truth: tuple, rival: tuple) -> tuple[float, ...]:
         """Expected difference truth - rival, its variance, and the smallest ESS share."""
-        moments, old, ess = [], [], 1.0
-        for d, lw, now in zip(self.laws, logw, self.old_now, strict=True):
-            w = _softmax_rows(lw)
-            ess = min(ess, float((1.0 / np.sum(w**2, axis=1)).min() / w.shape[1]))
-            ws = w[d.setting_run]  # (n_settings, n_draws)
-            mean = np.einsum("xs,sx->x", ws, d.mean_mm)
-            var = np.einsum("xs,sx->x", ws, d.var_mm2 + d.mean_mm**2) - mean**2
-            moments.append((mean, np.maximum(var, 1e-12)))
-            wj = w[d.jump_run]  # (n_jumps, n_draws)
-            with np.errstate(divide="ignore"):
-                fit_old = logsumexp(np.log(wj) + d.log_lik.T, axis=1)
-            old.append(float(np.sum(fit_old - now)))
-        (m_t, v_t), (m_r, v_r) = moments
+        (m_t, v_t, fit_t, ess_t), (m_r, v_r, fit_r, ess_r) = truth, rival
         per_jump = _expected_log_density(self.a, self.big_a, m_t, v_t) - _expected_log_density(
             self.a, self.big_a, m_r, v_r
         )
         var = _log_ratio_variance(self.a, self.big_a, m_t, v_t, m_r, v_r)
-        diff = self.diff_now + old[0] - old[1] + float(counts @ per_jump)
-        return diff, self.var_now + float(counts @ var), ess
+        diff = self.diff_now + fit_t - fit_r + float(counts @ per_jump)
+        return diff, self.var_now + float(counts @ var), min(ess_t, ess_r)
 
-    def with_jump(self, x: int) -> list[np.ndarray]:
-        """The draws' log-weights after one more planned jump at setting ``x``."""
-        out = []
-        for d, lw, g in zip(self.laws, self.logw, self.gain, strict=True):
-            lw = lw.copy()
-            lw[d.setting_run[x]] += g[:, x]
-            out.append(lw)
-        return out
+    def now(self, counts: np.ndarray) -> tuple[float, ...]:
+        """:meth:`evaluate` of the plan so far."""
+        return self.evaluate(counts, *(s.current() for s in self.states))
+
+    def trial(self, x: int, counts: np.ndarray) -> tuple[tuple[float, ...], list]:
+        """:meth:`evaluate` with one more jump at ``x`` (in ``counts``), and its changes."""
+        tried = [s.trial(x) for s in self.states]
+        return self.evaluate(counts, *(t for t, _ in tried)), [c for _, c in tried]
+
+    def commit(self, changes: list) -> None:
+        """Make the changes of a :meth:`trial` the plan's."""
+        for state, (r, logw) in zip(self.states, changes, strict=True):
+            state.commit(r, logw)
 
 
 def plan_jumps(
@@ -411,7 +449,7 @@ def plan_jumps(
         by_se = diff / (se_factor * math.sqrt(var)) if var > 0 else math.copysign(np.inf, diff)
         return min(diff / min_gain, by_se)
 
-    state = [h.evaluate(counts, h.logw) for h in hyps]
+    state = [h.now(counts) for h in hyps]
     now = {p: ratio(d, v) for p, (d, v, _) in zip(pairs, state, strict=True)}
     # a hypothesis the data already reject by the rule (its rival beats its truth) is not
     # designed for
@@ -426,17 +464,14 @@ def plan_jumps(
         for x in range(n_settings):
             trial = counts.copy()
             trial[x] += 1
-            cand = []
-            for h in hyps:
-                logw = h.with_jump(x)
-                cand.append((logw, h.evaluate(trial, logw)))
-            score = min(ratio(*cand[i][1][:2]) for i in active)
+            cand = [h.trial(x, trial) for h in hyps]
+            score = min(ratio(*cand[i][0][:2]) for i in active)
             if score > best_score:
                 best, best_score, best_state = x, score, cand
         counts[best] += 1
-        for h, (logw, _) in zip(hyps, best_state, strict=True):
-            h.logw = logw
-        state = [ev for _, ev in best_state]
+        for h, (_, changes) in zip(hyps, best_state, strict=True):
+            h.commit(changes)
+        state = [ev for ev, _ in best_state]
         settled = best_score > 1.0
     table = pd.DataFrame(
         {
