@@ -1035,7 +1035,7 @@ def _design_lines(tie: dict, design, record: dict) -> list[str]:
         "",
         "## Plan" + ("" if design.settled else " (budget spent: not settled in expectation)"),
         "",
-        markdown_table(design.plan),
+        markdown_table(design.plan, missing="-"),
         "",
         f"{design.n_jumps} jumps. Expected paired ELPD difference after them, under each "
         "hypothesis (which law is true): the separation of the two laws' predictive "
@@ -1050,7 +1050,7 @@ def _design_lines(tie: dict, design, record: dict) -> list[str]:
         "The best settings by the separation one jump gives under the worse hypothesis "
         "(`worst_kl` [nats]; all in `candidates.csv`):",
         "",
-        markdown_table(best.head(8).round(3)),
+        markdown_table(best.head(8).round(3), missing="-"),
     ]
     lines += ["", *[f"- note: {n}" for n in design.notes]] if design.notes else []
     return lines
