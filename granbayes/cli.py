@@ -926,7 +926,7 @@ def _add_design_arguments(parser: argparse.ArgumentParser) -> None:
     cands.add_argument(
         "--delay-ms",
         metavar="MS[,MS]",
-        help="holds of the delayed commands [ms] (default: the measured ones)",
+        help="holds of the delayed stutter [ms] (default: the measured ones)",
     )
     parser.add_argument(
         "--draws",
@@ -981,17 +981,10 @@ def _run_design(args: argparse.Namespace) -> int:
             max_jumps=args.max_jumps,
             n_draws=args.draws,
             rng=args.seed,
+            data_sha256=data_hash(experiment, data),
         )
     except (ValueError, FileNotFoundError) as exc:
         raise UsageError(str(exc)) from None
-    from .saved import load_fit
-
-    first = load_fit(args.diagnosis / "posterior_selected.nc")
-    if first.datatree.attrs.get("data_sha256") != data_hash(experiment, data):
-        raise UsageError(
-            f"{args.data} is not the data {args.diagnosis} diagnosed (sha256 differ; "
-            "pass the same folder, and the same --data if diagnose had one)"
-        )
     lines = _design_lines(tie, design, record)
     with staged_folder(args.out, resume=False) as work:
         (work / "design.json").write_text(

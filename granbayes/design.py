@@ -60,7 +60,7 @@ import numpy as np
 import pandas as pd
 from scipy.special import logsumexp
 
-from .commands import COMMAND_NAMES
+from .commands import COMMAND_NAMES, COMMANDS
 from .criticism import DiagnoseSettings
 from .forces import terms_of
 from .likelihood import Observations
@@ -80,10 +80,20 @@ __all__ = [
     "ties_of",
 ]
 
-#: Commands whose waveform has a hold: ``delay_ms`` matters for them only.
-_DELAYED = ("delayed_stutter", "delayed_stutter_preload")
 #: Settings columns of a candidate (and of a plan's rows).
 SETTINGS = ("command", "phi", "freq_hz", "delay_ms")
+
+
+def _expected_log_density(a, big_a, b, big_b):
+    """E log N(y; b, B) for y ~ N(a, A) [nats]."""
+    return -0.5 * np.log(2.0 * np.pi * big_b) - ((a - b) ** 2 + big_a) / (2.0 * big_b)
+
+
+def _log_ratio_variance(a, big_a, b1, big_b1, b2, big_b2):
+    """Var[log N(y; b1, B1) - log N(y; b2, B2)] for y ~ N(a, A) [nats^2]."""
+    lin = (a - b2) / big_b2 - (a - b1) / big_b1
+    quad = 0.5 / big_b2 - 0.5 / big_b1
+    return lin**2 * big_a + 2.0 * quad**2 * big_a**2
 
 
 def normal_separation(
@@ -112,11 +122,10 @@ def normal_separation(
     (2.0, 4.0)
     """
     st2, sr2 = np.square(sd_t), np.square(sd_r)
-    delta = np.asarray(mean_t) - np.asarray(mean_r)
-    kl = np.log(np.sqrt(sr2 / st2)) + (st2 + delta**2) / (2.0 * sr2) - 0.5
-    # log ratio = const + e * delta / sr2 + e^2 (1 / (2 sr2) - 1 / (2 st2)), e ~ N(0, st2)
-    var = (delta / sr2) ** 2 * st2 + 2.0 * st2**2 * (0.5 / sr2 - 0.5 / st2) ** 2
-    return kl, var
+    kl = _expected_log_density(mean_t, st2, mean_t, st2) - _expected_log_density(
+        mean_t, st2, mean_r, sr2
+    )
+    return kl, _log_ratio_variance(mean_t, st2, mean_t, st2, mean_r, sr2)
 
 
 def candidate_settings(
@@ -144,8 +153,10 @@ def candidate_settings(
         Frequencies [Hz] (default: ``n_freqs`` evenly from the lowest measured to the
         highest, the measured ones included: no extrapolation).
     delays_ms : sequence of float, optional
-        Holds of the delayed commands [ms] (default: the measured ones, or the
-        experiment's setting when the table has no ``delay_ms`` column: ``NaN``).
+        Holds [ms] of the commands that use ``delay_ms`` (the registry's
+        :attr:`granbayes.commands.Command.uses`: the delayed stutter; default: the
+        measured ones, or the experiment's setting when the table has no ``delay_ms``
+        column: ``NaN``).
     n_freqs : int
         Frequencies of the default grid.
 
@@ -153,7 +164,7 @@ def candidate_settings(
     -------
     pandas.DataFrame
         One row per setting: ``command``, ``phi``, ``freq_hz``, ``delay_ms`` (``NaN``:
-        the fit's experiment setting; also for commands without a hold).
+        the fit's experiment setting; also for commands that do not use it).
     """
     commands = list(commands or COMMAND_NAMES)
     unknown = sorted(set(commands) - set(COMMAND_NAMES))
@@ -172,7 +183,7 @@ def candidate_settings(
         )
     rows = []
     for command, phi, freq in itertools.product(commands, phis, sorted(map(float, freqs_hz))):
-        for delay in delays_ms if command in _DELAYED else [np.nan]:
+        for delay in delays_ms if "delay_ms" in COMMANDS[command].uses else [np.nan]:
             rows.append({"command": command, "phi": phi, "freq_hz": freq, "delay_ms": delay})
     return pd.DataFrame(rows, columns=list(SETTINGS))
 
@@ -277,18 +288,6 @@ class LawDraws:
         """Mean and variance [mm, mm^2] of a new jump at every setting, all draws equal."""
         mean = self.mean_mm.mean(axis=0)
         return mean, (self.var_mm2 + self.mean_mm**2).mean(axis=0) - mean**2
-
-
-def _expected_log_density(a, big_a, b, big_b):
-    """E log N(y; b, B) for y ~ N(a, A) [nats]."""
-    return -0.5 * np.log(2.0 * np.pi * big_b) - ((a - b) ** 2 + big_a) / (2.0 * big_b)
-
-
-def _log_ratio_variance(a, big_a, b1, big_b1, b2, big_b2):
-    """Var[log N(y; b1, B1) - log N(y; b2, B2)] for y ~ N(a, A) [nats^2]."""
-    lin = (a - b2) / big_b2 - (a - b1) / big_b1
-    quad = 0.5 / big_b2 - 0.5 / big_b1
-    return lin**2 * big_a + 2.0 * quad**2 * big_a**2
 
 
 class _LawState:
@@ -485,10 +484,7 @@ def plan_jumps(
             "refuted_now": refuted,
         }
     )
-    table["settled"] = [
-        bool(d > min_gain and d > se_factor * s)
-        for d, s in zip(table["elpd_diff_expected"], table["se_expected"], strict=True)
-    ]
+    table["settled"] = [ratio(d, v) > 1.0 for d, v, _ in state]
     return counts.astype(int), table, bool(settled), float(first)
 
 
@@ -832,6 +828,7 @@ def design_from_diagnosis(
     max_jumps: int = 60,
     n_draws: int = 800,
     rng: np.random.Generator | int = 0,
+    data_sha256: str | None = None,
 ) -> tuple[dict, Design]:
     """:func:`design_jumps` for a tie of a saved diagnosis (``granbayes design``).
 
@@ -849,15 +846,31 @@ def design_from_diagnosis(
         measured jumps).
     max_jumps, n_draws, rng
         As :func:`design_jumps`.
+    data_sha256 : str, optional
+        The measurements' hash (:func:`granbayes.fitting.data_hash`): checked against
+        the diagnosed data's before anything is computed.
 
     Returns
     -------
     tie : dict
         The tie (:func:`ties_of`).
     design : Design
+
+    Raises
+    ------
+    ValueError
+        No tie, or (with ``data_sha256``) a diagnosis of other data.
     """
     record = json.loads((Path(folder) / "diagnosis.json").read_text())
     chosen, fits = load_tie(folder, tie)
+    diagnosed = {f.datatree.attrs.get("data_sha256") for f in fits.values()}
+    if data_sha256 is not None and diagnosed != {data_sha256}:
+        raise ValueError(
+            f"{folder} diagnosed other data (sha256 "
+            f"{', '.join(str(h)[:12] for h in sorted(map(str, diagnosed)))}... against "
+            f"{data_sha256[:12]}...): pass the diagnosed folder, with the same kinds of "
+            "measurement"
+        )
     winner, rival = ("+".join(t) for t in chosen["laws"])
     rule = record["rule"]
     cfg = DiagnoseSettings(min_gain=float(rule["min_gain"]), se_factor=float(rule["se_factor"]))

@@ -152,6 +152,9 @@ def test_candidates_stay_within_what_was_measured() -> None:
     c = candidate_settings(measured, commands=["delayed_stutter", "single"], delays_ms=[50, 90])
     assert len(c[c["command"] == "delayed_stutter"]) == 2 * 5 * 2
     assert c.loc[c["command"] == "single", "delay_ms"].isna().all()
+    # the preload's hold is settle_periods (the command registry): delay_ms does not apply
+    c = candidate_settings(measured, commands=["delayed_stutter_preload"], delays_ms=[50, 90])
+    assert len(c) == 2 * 5 and c["delay_ms"].isna().all()
     with pytest.raises(ValueError, match="unknown command"):
         candidate_settings(measured, commands=["hop"])
 
@@ -291,6 +294,15 @@ def test_cli_design_refuses_with_one_message(tied, tmp_path: Path, capsys) -> No
         EXIT_INPUT
     )
     assert "no diagnosis.json" in capsys.readouterr().err
+    other = tmp_path / "other"  # the diagnosed folder with one height changed
+    other.mkdir()
+    (other / "experiment.toml").write_text((data / "experiment.toml").read_text())
+    jumps = pd.read_csv(data / "jumps.csv")
+    jumps.loc[0, "height_mm"] += 1.0
+    jumps.to_csv(other / "jumps.csv", index=False)
+    args = ["design", str(other), "--diagnosis", str(diagnosis), "--out", str(out)]
+    assert main(args) == EXIT_INPUT
+    assert "diagnosed other data" in capsys.readouterr().err
     assert not out.exists()
 
 
