@@ -25,16 +25,23 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 import granbayes
-from granbayes import Experiment, InputError, load_experiment, load_jumps
-from granbayes._provenance import environment
-from granbayes.cli import staged_folder
+from granbayes import REFERENCE_DATA as _REFERENCE_DATA
+from granbayes import (
+    Experiment,
+    FitResult,
+    FitSettings,
+    InputError,
+    SamplerSettings,
+    data_hash,
+    fit,
+    load_experiment,
+    load_jumps,
+)
 from granbayes.figures import source_label
-from granbayes.fitting import FitResult, FitSettings, data_hash, fit
 from granbayes.forces import terms_of
+from granbayes.report import environment, staged_folder
 from granbayes.report import markdown_table as _markdown_table
-from granbayes.sampler import SamplerSettings
 from granbayes.stats import CI_PROB
-from granbayes.synthetic import REFERENCE_DATA as _REFERENCE_DATA
 
 #: The shipped SYNTHETIC reference data set (package data; data/generate_reference.py, seed
 #: 20261121).

@@ -5,7 +5,7 @@ and plotted against the best kappa the duration of the interval of greatest adde
 impulse (its Fig. 9) and the total added-mass impulse of the jump (its Fig. 10). Here the
 law is fitted per command and volume fraction (all frequencies of that command together);
 a *cell* is one (command, phi, actuation frequency). Joint posterior draws of each fit are
-simulated per cell (``granbayes.mechanics`` defines the impulse J_total, the added-mass
+simulated per cell (``granbayes.analysis.mechanics`` defines the impulse J_total, the added-mass
 intervals and the duration, and checks the sum); the best kappa is the posterior median.
 Correlations across cells are given the thesis's way (Pearson r of the cells' medians) and
 propagated (r across cells for every draw index), with Spearman's rank correlation
@@ -22,12 +22,11 @@ import pandas as pd
 
 import _common as common
 import granbayes
-from granbayes import COMMAND_NAMES, InputError
+from granbayes import COMMAND_NAMES, InputError, default_priors
 from granbayes.analysis import cell_experiment
+from granbayes.analysis.mechanics import MAX_STEP_S, integral_check, simulate_impulses
 from granbayes.commands import SETTINGS as SETTING_COLUMNS
 from granbayes.figures import plot_added_mass, plot_vs_kappa
-from granbayes.mechanics import MAX_STEP_S, integral_check, simulate_impulses
-from granbayes.priors import default_priors
 from granbayes.stats import (
     CI_PROB,
     correlation,

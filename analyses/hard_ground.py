@@ -20,8 +20,8 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 import _common as common
+from granbayes.analysis.mechanics import actuator_power, best_frequency, rigid_heights_mm
 from granbayes.figures import COMMAND_COLORS
-from granbayes.mechanics import actuator_power, best_frequency, rigid_heights_mm
 
 NAME = "hard_ground"
 COMMANDS = ("single", "stutter")

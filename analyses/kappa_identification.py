@@ -36,9 +36,8 @@ from matplotlib.lines import Line2D
 from scipy.stats import binom
 
 import _common as common
-from granbayes.fitting import FitSettings, fit
+from granbayes import FitSettings, default_priors, fit
 from granbayes.kinds import load_measurements
-from granbayes.priors import default_priors
 from granbayes.report import load_truth
 from granbayes.stats import CI_PROB, IDENTIFIABILITY_LEVELS, identifiability_table, interval
 

@@ -4,7 +4,7 @@ The founding thesis hand-tuned the law F = k z + c_d z'^2 and found that, at the
 packing, the (k, c_d) valleys of least misfit of the preload jump and of the delayed
 stutter preload jump do not intersect: no single (k, c_d) fits both. This analysis redoes
 that test on any experiment folder, with an uncertainty, at every volume fraction in the
-data. The computation is ``granbayes.maps`` (its docstring defines cell, grid, misfit,
+data. The computation is ``granbayes.analysis.maps`` (its docstring defines cell, grid, misfit,
 valley, acceptable, closest approach); the bootstrap resamples the trials of each cell 500
 times (100 with ``--fast``).
 """
@@ -20,8 +20,7 @@ import pandas as pd
 
 import _common as common
 from granbayes import InputError
-from granbayes.figures import plot_misfit_maps, plot_valleys
-from granbayes.maps import (
+from granbayes.analysis.maps import (
     CD_MAX_KG_PER_M,
     K_RANGE_N_PER_M,
     TOLERANCE_SE,
@@ -34,6 +33,7 @@ from granbayes.maps import (
     short,
     valley_table,
 )
+from granbayes.figures import plot_misfit_maps, plot_valleys
 from granbayes.stats import fmt_triple, interval
 
 NAME = "misfit_maps"

@@ -20,8 +20,8 @@ import numpy as np
 import pandas as pd
 
 import _common as common
+from granbayes import compare_commands
 from granbayes.figures import plot_coefficients_vs_phi
-from granbayes.fitting import compare_commands
 from granbayes.stats import CI_PROB, posterior_intervals
 
 NAME = "one_force_law"

@@ -11,7 +11,7 @@ reported: (a) the largest expected jump height and (b) the most reliable jump, t
 probability that the reported optimum is the best and the spread of the optimal frequency
 and delay. Finally the model is held against the published finding (physics-model.md
 section 7.1): a delayed stutter with a ~50 ms delay beats the single jump on loose beds,
-and a delay near 0 gives the lowest jumps. The computation is ``granbayes.optimal``.
+and a delay near 0 gives the lowest jumps. The computation is ``granbayes.analysis.optimal``.
 """
 
 from __future__ import annotations
@@ -28,8 +28,7 @@ import xarray as xr
 
 import _common as common
 from granbayes import InputError, load_fit
-from granbayes.figures import plot_delay_curves, plot_optimum_vs_frequency, plot_optimum_vs_phi
-from granbayes.optimal import (
+from granbayes.analysis.optimal import (
     MAX_FAIL_FRACTION,
     N_NOISE,
     NEAR_ZERO_MS,
@@ -42,7 +41,8 @@ from granbayes.optimal import (
     setting_table,
     settings_grid,
 )
-from granbayes.optimal import describe_setting as describe
+from granbayes.analysis.optimal import describe_setting as describe
+from granbayes.figures import plot_delay_curves, plot_optimum_vs_frequency, plot_optimum_vs_phi
 from granbayes.stats import CI_PROB, fmt_triple, interval
 
 NAME = "optimal_jumping"

@@ -10,7 +10,7 @@ command settings (``freq_hz`` 8/10/12 Hz or empty, ``amplitude_mm``, ``delay_ms`
 a. **CLI process.** ``granbayes simulate --batch IN --out OUT --threads 1`` as a
    subprocess (wall time; import, numba cache load, read, validate, simulate, write), and
    the same on a one-row table (the fixed start-up cost of a process).
-b. **CLI in-process.** ``granbayes.cli.main([...])`` with the same arguments (wall and CPU
+b. **CLI in-process.** ``granbayes._cli.main([...])`` with the same arguments (wall and CPU
    time), and where its time goes: reading the file, validating the cells, the simulation
    (the kernel, and the table and grouping code around it) and writing the output.
 c. **The API.** ``granbayes.simulate`` on the same jumps, one call per command program
@@ -54,13 +54,13 @@ import numpy as np
 import pandas as pd
 
 import granbayes
-import granbayes.cli
-import granbayes.experiment
-import granbayes.simulator
+import granbayes._cli
+import granbayes._experiment
+import granbayes._simulator
+from granbayes._experiment import Experiment
+from granbayes._simulator import build_rows, simulate, simulate_rows
 from granbayes.commands import COMMAND_NAMES
-from granbayes.experiment import Experiment
 from granbayes.forces import typical_ranges
-from granbayes.simulator import build_rows, simulate, simulate_rows
 
 BENCH_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = BENCH_DIR / "results"
@@ -174,12 +174,12 @@ def phase_clock(phases: dict[str, float]) -> Iterator[None]:
     results' text) and ``text`` (``_CsvTable.to_text``); CPU seconds, summed per call.
     """
     targets = [
-        (granbayes.experiment, "_read_csv", "read"),
-        (granbayes.cli, "_load_batch", "load"),
-        (granbayes.cli, "simulate_table", "table"),
-        (granbayes.simulator, "simulate_rows", "kernel"),
-        (granbayes.cli, "_csv_numbers", "format"),
-        (granbayes.experiment._CsvTable, "to_text", "text"),
+        (granbayes._experiment, "_read_csv", "read"),
+        (granbayes._cli, "_load_batch", "load"),
+        (granbayes._cli, "simulate_table", "table"),
+        (granbayes._simulator, "simulate_rows", "kernel"),
+        (granbayes._cli, "_csv_numbers", "format"),
+        (granbayes._experiment._CsvTable, "to_text", "text"),
     ]
     saved = []
     for owner, name, phase in targets:
@@ -202,12 +202,12 @@ def phase_clock(phases: dict[str, float]) -> Iterator[None]:
 
 
 def granbayes_program() -> list[str]:
-    """The installed ``granbayes`` console script (or ``python -m granbayes.cli``)."""
+    """The installed ``granbayes`` console script (or ``python -m granbayes._cli``)."""
     script = Path(sys.executable).with_name("granbayes")
     if script.is_file():
         return [str(script)]
     found = shutil.which("granbayes")
-    return [found] if found else [sys.executable, "-m", "granbayes.cli"]
+    return [found] if found else [sys.executable, "-m", "granbayes._cli"]
 
 
 def _children_cpu() -> float:
@@ -229,11 +229,11 @@ def run_process(argv: Sequence[str]) -> tuple[float, float]:
 
 
 def run_in_process(argv: list[str]) -> tuple[float, float]:
-    """(b) Wall and CPU time [s] of ``granbayes.cli.main(argv)`` (stderr silenced)."""
+    """(b) Wall and CPU time [s] of ``granbayes._cli.main(argv)`` (stderr silenced)."""
     with contextlib.redirect_stderr(io.StringIO()):
-        wall, cpu, code = timed(lambda: granbayes.cli.main(argv))
+        wall, cpu, code = timed(lambda: granbayes._cli.main(argv))
     if code != 0:
-        raise RuntimeError(f"granbayes.cli.main({argv}) exited {code}")
+        raise RuntimeError(f"granbayes._cli.main({argv}) exited {code}")
     return wall, cpu
 
 
@@ -384,7 +384,7 @@ def render_markdown(results: dict) -> str:
         ("(a) `granbayes simulate --batch` process", "a", "a_c"),
         ("(a) start-up of a process (one-row table), per jump of the batch", "a_start", None),
         ("(a) minus start-up", None, "a_minus_start_c"),
-        ("(b) `granbayes.cli.main`, in-process", "b", "b_c"),
+        ("(b) `granbayes._cli.main`, in-process", "b", "b_c"),
         ("(c) `granbayes.simulate` per command program, in-process", "c", None),
         ("(c) `simulate_rows`, all programs in one call", "c_rows", "c_rows_c"),
     ]

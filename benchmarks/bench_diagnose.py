@@ -29,10 +29,10 @@ import time
 from pathlib import Path
 
 from granbayes import load_experiment, load_jumps, simulate
-from granbayes.criticism import DiagnoseSettings, diagnose
+from granbayes._criticism import DiagnoseSettings, diagnose
+from granbayes._synthetic import REFERENCE_DATA
 from granbayes.forces import TERMS
 from granbayes.report import write_diagnosis_report
-from granbayes.synthetic import REFERENCE_DATA
 
 HERE = Path(__file__).resolve().parent
 DATA = {

@@ -26,9 +26,9 @@ from pathlib import Path
 import numba
 
 from granbayes import load_experiment, load_jumps, simulate
-from granbayes.fitting import FitSettings, fit
+from granbayes._fitting import FitSettings, fit
+from granbayes._synthetic import REFERENCE_DATA
 from granbayes.report import write_fit_report
-from granbayes.synthetic import REFERENCE_DATA
 
 HERE = Path(__file__).resolve().parent
 DATA = REFERENCE_DATA

@@ -2,7 +2,7 @@
 
 A tracked jump (``granbayes.simulate_frames_rows``) is simulated once, like a height-only
 jump (``granbayes.simulate_rows``), and its positions and velocities at the frame times
-(the four columns of ``granbayes.simulator.FRAME_COLUMNS``) come from the dense output of
+(the four columns of ``granbayes._simulator.FRAME_COLUMNS``) come from the dense output of
 the accepted steps (no extra steps, except that a jump whose frames go on
 after its height is final is simulated on to its last frame). Measured in one run, on one
 machine:
@@ -56,13 +56,13 @@ import numpy as np
 from bench_simulator import Workload, draw_workload, machine_info, programs
 
 from granbayes import _kernel
-from granbayes.commands import COMMAND_NAMES
-from granbayes.simulator import (
+from granbayes._simulator import (
     SolverSettings,
     Status,
     simulate_frames_rows,
     simulate_rows,
 )
+from granbayes.commands import COMMAND_NAMES
 
 BENCH_DIR = Path(__file__).resolve().parent
 RESULTS_DIR = BENCH_DIR / "results"

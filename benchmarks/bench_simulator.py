@@ -49,10 +49,10 @@ import numpy as np
 import scipy
 
 import granbayes
+from granbayes._experiment import Robot
+from granbayes._simulator import SolverSettings, Status, build_rows, simulate_rows
 from granbayes.commands import COMMAND_NAMES, CommandProgram, build_command
-from granbayes.experiment import Robot
 from granbayes.forces import typical_ranges
-from granbayes.simulator import SolverSettings, Status, build_rows, simulate_rows
 from granbayes.testing import simulate_height_scipy
 
 BENCH_DIR = Path(__file__).resolve().parent

@@ -36,6 +36,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from granbayes import __version__
+from granbayes._criticism import DiagnoseSettings
 from granbayes.calibration import (
     CASE_KINDS,
     DESIGN_RANGES,
@@ -50,8 +51,7 @@ from granbayes.calibration import (
     rederive_verdicts,
     summarize,
 )
-from granbayes.campaign import Task, run_campaign, spawn_seeds
-from granbayes.criticism import DiagnoseSettings
+from granbayes.campaign import ClusterSettings, Task, run_campaign, spawn_seeds
 from granbayes.report import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -384,8 +384,7 @@ def main(argv: list[str] | None = None) -> int:
         todo,
         args.out,
         description=description,
-        scheduler_address=args.scheduler,
-        n_workers=args.workers,
+        cluster=ClusterSettings(scheduler_address=args.scheduler, n_workers=args.workers),
         resume=args.resume,
         log=lambda m: print(m, file=sys.stderr),
     )

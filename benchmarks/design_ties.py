@@ -30,7 +30,7 @@ from pathlib import Path
 import pandas as pd
 
 from granbayes.calibration import clopper_pearson, design_tie_case
-from granbayes.campaign import Task, run_campaign, spawn_seeds
+from granbayes.campaign import ClusterSettings, Task, run_campaign, spawn_seeds
 from granbayes.report import markdown_table
 
 HERE = Path(__file__).resolve().parent
@@ -86,8 +86,7 @@ def main(argv: list[str] | None = None) -> int:
             tasks,
             args.out,
             description=description,
-            n_workers=args.workers,
-            numba_threads=1,
+            cluster=ClusterSettings(n_workers=args.workers, numba_threads=1),
             resume=args.resume,
             log=lambda m: print(m, file=sys.stderr),
         )

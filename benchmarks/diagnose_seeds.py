@@ -16,10 +16,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from granbayes._synthetic import REFERENCE_DATA
 from granbayes.calibration import diagnose_folder
-from granbayes.campaign import Task, run_campaign
+from granbayes.campaign import ClusterSettings, Task, run_campaign
 from granbayes.report import markdown_table
-from granbayes.synthetic import REFERENCE_DATA
 
 HERE = Path(__file__).resolve().parent
 
@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
         tasks,
         args.out,
         description={"kind": "diagnose seeds", "data": "granbayes/data/reference"},
-        n_workers=args.workers,
+        cluster=ClusterSettings(n_workers=args.workers),
         resume=args.resume,
         log=lambda m: print(m, file=sys.stderr),
     )

@@ -32,8 +32,8 @@ import numpy as np
 import pandas as pd
 
 from granbayes import CommandSettings, Experiment, Robot
-from granbayes.criticism import DiagnoseSettings
-from granbayes.fitting import FitSettings, fit
+from granbayes._criticism import DiagnoseSettings
+from granbayes._fitting import FitSettings, fit
 from granbayes.testing import simulate_height_scipy
 
 HERE = Path(__file__).resolve().parent

@@ -36,8 +36,8 @@ import numpy as np
 import pandas as pd
 
 import granbayes as gb
+from granbayes._fitting import FitSettings, fit
 from granbayes.commands import COMMAND_NAMES
-from granbayes.fitting import FitSettings, fit
 from granbayes.report import markdown_table
 from granbayes.testing import LabDesign, synthetic_lab_data, write_lab_experiment
 

@@ -24,8 +24,8 @@ import numpy as np
 import pandas as pd
 
 import granbayes as gb
-from granbayes.likelihood import BedPhi, HeightBlock, JumpModel, Observations
-from granbayes.priors import default_priors
+from granbayes._likelihood import BedPhi, HeightBlock, JumpModel, Observations
+from granbayes._priors import default_priors
 from granbayes.report import markdown_table
 from granbayes.testing import synthetic_lab_data, write_lab_experiment
 

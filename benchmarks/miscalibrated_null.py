@@ -23,7 +23,7 @@ from pathlib import Path
 import pandas as pd
 
 from granbayes.calibration import MISCALIBRATION, clopper_pearson, diagnose_miscalibrated
-from granbayes.campaign import Task, run_campaign
+from granbayes.campaign import ClusterSettings, Task, run_campaign
 from granbayes.report import markdown_table
 
 HERE = Path(__file__).resolve().parent
@@ -99,8 +99,7 @@ def main(argv: list[str] | None = None) -> int:
             tasks,
             args.out,
             description=description,
-            n_workers=args.workers,
-            numba_threads=1,
+            cluster=ClusterSettings(n_workers=args.workers, numba_threads=1),
             resume=args.resume,
             log=lambda m: print(m, file=sys.stderr),
         )

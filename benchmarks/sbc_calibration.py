@@ -1,6 +1,6 @@
 """Study: coverage of ``k`` and ``c_d`` when the robot is known only to its calibration.
 
-Simulation-based calibration (``granbayes.sbc.run_sbc``, a Dask campaign) on a SYNTHETIC
+Simulation-based calibration (``granbayes._sbc.run_sbc``, a Dask campaign) on a SYNTHETIC
 design (2 volume fractions x 5 commands x 2 trials at 10 Hz; the design's heights are
 replaced by every replicate) of an experiment whose ``[robot.uncertainty]`` gives the
 spring, the motor mass and the stroke a calibration sd (``granbayes.calibration.
@@ -27,11 +27,12 @@ from pathlib import Path
 import pandas as pd
 
 from granbayes import Experiment
+from granbayes._fitting import FitSettings
+from granbayes._sampler import SamplerSettings
+from granbayes._sbc import run_sbc
 from granbayes.calibration import MISCALIBRATION
-from granbayes.fitting import FitSettings
+from granbayes.campaign import ClusterSettings
 from granbayes.report import markdown_table
-from granbayes.sampler import SamplerSettings
-from granbayes.sbc import run_sbc
 from granbayes.testing import synthetic_jumps
 
 HERE = Path(__file__).resolve().parent
@@ -70,8 +71,7 @@ def main(argv: list[str] | None = None) -> int:
             config=config,
             n_replicates=args.replicates,
             seed=SEED,
-            n_workers=args.workers,
-            numba_threads=1,
+            cluster=ClusterSettings(n_workers=args.workers, numba_threads=1),
             resume=args.resume,
             data_source="SYNTHETIC design, benchmarks/sbc_calibration.py",
         )

@@ -35,11 +35,11 @@ from pathlib import Path
 import numba
 
 from granbayes import load_experiment, load_jumps, simulate
-from granbayes.campaign import local_cluster_size
-from granbayes.fitting import FitSettings
-from granbayes.sampler import SamplerSettings
-from granbayes.sbc import run_sbc
-from granbayes.synthetic import REFERENCE_DATA
+from granbayes._fitting import FitSettings
+from granbayes._sampler import SamplerSettings
+from granbayes._sbc import run_sbc
+from granbayes._synthetic import REFERENCE_DATA
+from granbayes.campaign import ClusterSettings, local_cluster_size
 
 HERE = Path(__file__).resolve().parent
 DATA = REFERENCE_DATA
@@ -85,7 +85,7 @@ def main() -> None:
             n_replicates=args.replicates,
             seed=args.seed,
             n_rank_draws=args.rank_draws,
-            n_workers=workers,
+            cluster=ClusterSettings(n_workers=workers),
             resume=args.resume,
             data_source="granbayes/data/reference",
             log=print,

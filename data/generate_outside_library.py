@@ -19,8 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from granbayes import Experiment
-from granbayes.synthetic import make_jumps, write_experiment
+from granbayes import Experiment, make_jumps, write_experiment
 
 SEED = 20261123
 PHI_C = 0.612

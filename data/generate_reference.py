@@ -1,7 +1,7 @@
 """Generate the SYNTHETIC reference data set ``granbayes/data/reference/`` (seeded).
 
 No public jump-height data set exists, so granbayes ships this synthetic one, as package
-data (``granbayes.synthetic.REFERENCE_DATA``, used by ``granbayes demo``). Every file it
+data (``granbayes.REFERENCE_DATA``, used by ``granbayes demo``). Every file it
 writes says so. The true force law is documented in ``granbayes/data/reference/TRUTH.md``
 and stored in ``granbayes/data/reference/truth.toml``; inference code never reads either
 (only tests and reports compare against them).
@@ -27,8 +27,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from granbayes import Experiment
-from granbayes.synthetic import make_jumps
+from granbayes import Experiment, make_jumps
 
 SEED = 20261121
 PHI_C = 0.612

@@ -6,7 +6,9 @@
   repository) reproduced unchanged, when that folder is there;
 * the command-line reference in ``docs/data-format.md``: ``granbayes --help`` and the
   ``--help`` of every subcommand, at 100 columns;
-* the table of default priors in ``docs/priors.md``: ``granbayes.priors.default_priors()``.
+* the table of default priors in ``docs/priors.md``: ``granbayes.default_priors()``;
+* the list of public names in the README's API section: ``granbayes.__all__`` and the
+  ``__all__`` of every module of ``granbayes.PUBLIC_MODULES``.
 
 Everything between ``<!-- BEGIN GENERATED name -->`` and ``<!-- END GENERATED name -->`` is
 replaced; the rest is written by hand. ``python docs/generate.py --check`` only reports
@@ -66,7 +68,7 @@ def _help(parser: argparse.ArgumentParser) -> str:
 
 def cli_reference() -> str:
     """Markdown: ``granbayes --help``, then each subcommand's ``--help``."""
-    from granbayes.cli import build_parser
+    from granbayes._cli import build_parser
 
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
@@ -89,8 +91,8 @@ def cli_reference() -> str:
 
 def priors_table() -> str:
     """Markdown table of the default prior of every parameter, with its reason."""
+    from granbayes import default_priors
     from granbayes.forces import parameter_term, registered_parameters
-    from granbayes.priors import default_priors
 
     described = {p.name: p.description for p in registered_parameters()}
     lines = [
@@ -110,6 +112,20 @@ def priors_table() -> str:
     return "\n".join(lines)
 
 
+def public_surface() -> str:
+    """Markdown table of the public surface: each public module and its ``__all__``."""
+    import importlib
+
+    import granbayes
+
+    lines = ["| module | public names |", "|---|---|"]
+    for name in ("granbayes", *granbayes.PUBLIC_MODULES):
+        module = importlib.import_module(name)
+        names = ", ".join(f"`{n}`" for n in sorted(module.__all__, key=str.lower))
+        lines.append(f"| `{name}` | {names} |")
+    return "\n".join(lines)
+
+
 def render() -> dict[Path, str]:
     """The generated documents: path to their up-to-date text."""
     out = {}
@@ -120,6 +136,8 @@ def render() -> dict[Path, str]:
     out[path] = splice(text, "cli", cli_reference())
     path = DOCS / "priors.md"
     out[path] = splice(path.read_text(encoding="utf-8"), "priors", priors_table())
+    path = ROOT / "README.md"
+    out[path] = splice(path.read_text(encoding="utf-8"), "public-api", public_surface())
     return out
 
 

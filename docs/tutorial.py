@@ -38,10 +38,8 @@ import matplotlib
 import numpy as np
 
 import granbayes as gb
-from granbayes.criticism import DiagnoseSettings, diagnose
-from granbayes.fitting import FitSettings, fit
-from granbayes.sampler import SamplerSettings
-from granbayes.synthetic import make_jumps, write_experiment
+from granbayes import DiagnoseSettings, FitSettings, SamplerSettings, diagnose, fit
+from granbayes._synthetic import make_jumps, write_experiment
 
 matplotlib.use("Agg")  # figures are written to files
 OUT = Path("tutorial-output")

@@ -2,34 +2,37 @@
 
 The package follows the flow of data:
 
-``experiment`` (folder, robot, settings) -> ``commands`` and ``forces`` (the model) ->
-``simulator`` (batched, compiled) -> likelihood and priors -> sampler -> ``fitting``
-(DataTree) -> ``saved`` (a fit read back) -> ``prediction`` -> ``criticism`` -> report.
+experiment folder (``_experiment``, ``_measurements``) -> ``commands`` and ``forces`` (the
+model) -> ``_simulator`` (batched, compiled) -> ``_likelihood`` and ``_priors`` ->
+``_sampler`` -> ``_fitting`` (DataTree) -> ``_saved`` (a fit read back) -> ``_prediction``
+-> ``_criticism`` -> ``report``.
 
-The public API is what ``granbayes`` exports (``__all__``): reading experiments,
-simulating, fitting (:func:`fit`, :class:`FitSettings`, :class:`FitResult`,
-:class:`SamplerSettings`), reading a fit back (:func:`load_fit`, :class:`SavedFit`),
-predicting (:func:`predict`, :class:`Prediction`) and criticising (:func:`diagnose`,
-:class:`DiagnoseSettings`, :class:`Diagnosis`, :func:`residual_table`). The inference names are
-imported on first use, so ``import granbayes`` stays as fast as the simulator needs.
+**The public surface** is what ``granbayes`` exports (``__all__``, the README's API
+section) and the public modules of :data:`PUBLIC_MODULES`: the registries
+(:mod:`granbayes.forces`, :mod:`granbayes.commands`, :mod:`granbayes.kinds`), the layers
+on the DataTree (:mod:`granbayes.stats`, :mod:`granbayes.figures`, :mod:`granbayes.report`),
+the analyses' computations (:mod:`granbayes.analysis`), the experiment that settles a tie
+(:mod:`granbayes.design`), campaigns and the verdict study (:mod:`granbayes.campaign`,
+:mod:`granbayes.calibration`) and the test kit (:mod:`granbayes.testing`). Modules whose
+names start with an underscore are the implementation: their names may change without
+notice. ``tests/test_public_api.py`` holds that ``analyses/`` uses nothing else.
 
 Settings objects are named ``*Settings``: :class:`FitSettings`, :class:`SamplerSettings`,
-:class:`SolverSettings`, :class:`DiagnoseSettings`. Their former names ``FitConfig``,
-``SolverOptions`` and ``DiagnoseConfig`` are deprecated aliases of the same classes:
-still importable (from ``granbayes`` and from their modules), with a
-``DeprecationWarning``.
-
-The analyses of the thesis's questions (``analyses/``) are built on submodules imported
-explicitly: :mod:`granbayes.analysis` (posterior summaries), :mod:`granbayes.maps` (misfit
-maps over a (k, c_d) grid), :mod:`granbayes.optimal` (settings search under a posterior),
-:mod:`granbayes.mechanics` (added-mass impulse, actuator power, rigid floor) and the
-figures of :mod:`granbayes.plots`.
+:class:`SolverSettings`, :class:`DiagnoseSettings`, and
+:class:`granbayes.campaign.ClusterSettings`. Deprecated, with a ``DeprecationWarning``
+naming the new name: the former names ``FitConfig``, ``SolverOptions`` and
+``DiagnoseConfig`` of the same classes, and the former module paths of the implementation
+(``granbayes.fitting`` for ``granbayes._fitting``, ``granbayes.maps`` for
+``granbayes.analysis.maps``, ...; :data:`MOVED_MODULES`).
 """
 
 import importlib.metadata as _metadata
 from typing import TYPE_CHECKING
 
+from ._deprecated import install_moved_modules as _install_moved_modules
 from ._deprecated import warn_alias as _warn_alias
+from ._errors import InputError
+from ._experiment import Experiment, Robot, load_experiment
 from ._measurements import (
     Measurements,
     load_batch_table,
@@ -37,19 +40,7 @@ from ._measurements import (
     load_jumps,
     load_trajectories,
 )
-from .commands import (
-    COMMAND_NAMES,
-    COMMANDS,
-    Command,
-    CommandProgram,
-    CommandSettings,
-    Segment,
-    build_command,
-)
-from .errors import InputError
-from .experiment import Experiment, Robot, load_experiment
-from .forces import PARAMETER_NAMES, TERMS, ForceLaw
-from .simulator import (
+from ._simulator import (
     Heights,
     SolverSettings,
     Status,
@@ -65,15 +56,34 @@ from .simulator import (
     simulate_table,
     simulate_trajectory,
 )
+from .commands import (
+    COMMAND_NAMES,
+    COMMANDS,
+    Command,
+    CommandProgram,
+    CommandSettings,
+    Segment,
+    build_command,
+)
+from .forces import PARAMETER_NAMES, TERMS, ForceLaw
 
 if TYPE_CHECKING:
-    from .criticism import DiagnoseSettings, Diagnosis, diagnose
-    from .fitting import CommandComparison, FitResult, FitSettings, compare_commands, fit
+    from ._criticism import DiagnoseSettings, Diagnosis, diagnose
+    from ._fitting import (
+        CommandComparison,
+        FitResult,
+        FitSettings,
+        compare_commands,
+        data_hash,
+        fit,
+    )
+    from ._prediction import Prediction, predict
+    from ._priors import Prior, default_priors, load_priors
+    from ._sampler import SamplerSettings
+    from ._saved import SavedFit, load_fit
+    from ._sbc import SBCResult, run_sbc
+    from ._synthetic import REFERENCE_DATA, make_jumps, write_experiment
     from .kinds import load_measurements
-    from .prediction import Prediction, predict
-    from .priors import Prior, default_priors, load_priors
-    from .sampler import SamplerSettings
-    from .saved import SavedFit, load_fit
     from .stats import residual_table
 
 try:  # the version is written once, in pyproject.toml
@@ -83,24 +93,30 @@ except _metadata.PackageNotFoundError:  # a source tree that is not installed
 
 #: Public names imported on first use (module of each), to keep ``import granbayes`` light.
 _LAZY = {
-    "fit": "fitting",
-    "compare_commands": "fitting",
-    "CommandComparison": "fitting",
-    "FitSettings": "fitting",
-    "FitResult": "fitting",
-    "SamplerSettings": "sampler",
-    "load_fit": "saved",
-    "SavedFit": "saved",
-    "predict": "prediction",
-    "Prediction": "prediction",
-    "diagnose": "criticism",
-    "DiagnoseSettings": "criticism",
-    "Diagnosis": "criticism",
+    "fit": "_fitting",
+    "compare_commands": "_fitting",
+    "CommandComparison": "_fitting",
+    "FitSettings": "_fitting",
+    "FitResult": "_fitting",
+    "data_hash": "_fitting",
+    "SamplerSettings": "_sampler",
+    "load_fit": "_saved",
+    "SavedFit": "_saved",
+    "predict": "_prediction",
+    "Prediction": "_prediction",
+    "diagnose": "_criticism",
+    "DiagnoseSettings": "_criticism",
+    "Diagnosis": "_criticism",
     "residual_table": "stats",
     "load_measurements": "kinds",
-    "Prior": "priors",
-    "default_priors": "priors",
-    "load_priors": "priors",
+    "Prior": "_priors",
+    "default_priors": "_priors",
+    "load_priors": "_priors",
+    "run_sbc": "_sbc",
+    "SBCResult": "_sbc",
+    "REFERENCE_DATA": "_synthetic",
+    "make_jumps": "_synthetic",
+    "write_experiment": "_synthetic",
 }
 
 
@@ -111,6 +127,54 @@ _DEPRECATED = {
     "DiagnoseConfig": "DiagnoseSettings",
     "SolverOptions": "SolverSettings",
 }
+
+#: The public modules besides ``granbayes`` itself (their ``__all__`` is their surface).
+PUBLIC_MODULES = (
+    "granbayes.analysis",
+    "granbayes.analysis.maps",
+    "granbayes.analysis.mechanics",
+    "granbayes.analysis.optimal",
+    "granbayes.calibration",
+    "granbayes.campaign",
+    "granbayes.commands",
+    "granbayes.design",
+    "granbayes.figures",
+    "granbayes.forces",
+    "granbayes.kinds",
+    "granbayes.report",
+    "granbayes.stats",
+    "granbayes.testing",
+)
+
+#: Former module paths of the implementation (old -> new), importable with a
+#: DeprecationWarning until they are removed.
+MOVED_MODULES = {
+    **{
+        f"granbayes.{name}": f"granbayes._{name}"
+        for name in (
+            "cli",
+            "criticism",
+            "datatree",
+            "demo",
+            "errors",
+            "experiment",
+            "fitting",
+            "likelihood",
+            "prediction",
+            "priors",
+            "sampler",
+            "saved",
+            "sbc",
+            "simulator",
+            "synthetic",
+        )
+    },
+    "granbayes.maps": "granbayes.analysis.maps",
+    "granbayes.mechanics": "granbayes.analysis.mechanics",
+    "granbayes.optimal": "granbayes.analysis.optimal",
+    "granbayes.plots": "granbayes.figures",
+}
+_install_moved_modules(MOVED_MODULES)
 
 
 def __getattr__(name: str) -> object:
@@ -139,6 +203,10 @@ def __dir__() -> list[str]:
 
 __all__ = [
     "COMMANDS",
+    "MOVED_MODULES",
+    "PUBLIC_MODULES",
+    "REFERENCE_DATA",
+    "SBCResult",
     "COMMAND_NAMES",
     "Command",
     "PARAMETER_NAMES",
@@ -169,6 +237,7 @@ __all__ = [
     "__version__",
     "build_command",
     "compare_commands",
+    "data_hash",
     "default_priors",
     "diagnose",
     "fit",
@@ -181,8 +250,10 @@ __all__ = [
     "load_jumps",
     "load_measurements",
     "load_trajectories",
+    "make_jumps",
     "load_priors",
     "predict",
+    "run_sbc",
     "residual_table",
     "simulate",
     "simulate_frames",
@@ -190,4 +261,5 @@ __all__ = [
     "simulate_rows",
     "simulate_table",
     "simulate_trajectory",
+    "write_experiment",
 ]

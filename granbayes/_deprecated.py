@@ -1,18 +1,23 @@
 """Old public names kept as deprecated aliases of their new ones (PEP 562 module attributes).
 
 A module lists its aliases, old name -> new name, and uses :func:`alias_getattr` as its
-module ``__getattr__``: ``from granbayes.fitting import FitConfig`` then still works, gives
+module ``__getattr__``: ``from granbayes._fitting import FitConfig`` then still works, gives
 the very class now named ``FitSettings`` and warns (``DeprecationWarning``, pointing at the
 line that used the old name). The aliases are not in ``__all__``.
 """
 
 from __future__ import annotations
 
+import importlib
+import importlib.abc
+import importlib.machinery
+import importlib.util
 import sys
 import warnings
 from collections.abc import Callable, Mapping
+from types import ModuleType
 
-__all__ = ["alias_getattr", "warn_alias"]
+__all__ = ["alias_getattr", "install_moved_modules", "warn_alias"]
 
 
 def warn_alias(module: str, old: str, new: str) -> None:
@@ -49,3 +54,48 @@ def alias_getattr(module: str, aliases: Mapping[str, str]) -> Callable[[str], ob
         return getattr(sys.modules[module], new)
 
     return __getattr__
+
+
+class _MovedModuleLoader(importlib.abc.Loader):
+    """Loads an old module path as the module now at its new path."""
+
+    def __init__(self, new: str) -> None:
+        self.new = new
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
+        private = any(part.startswith("_") for part in self.new.split("."))
+        use = "the names 'granbayes' exports" if private else self.new
+        warnings.warn(
+            f"{spec.name} is a deprecated module path (now {self.new}); use {use}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return importlib.import_module(self.new)
+
+    def exec_module(self, module: ModuleType) -> None:
+        """Nothing to run: the module at the new path is already executed."""
+
+
+class _MovedModuleFinder(importlib.abc.MetaPathFinder):
+    """Finds the old paths of moved modules (old path -> new path)."""
+
+    def __init__(self, moved: Mapping[str, str]) -> None:
+        self.moved = dict(moved)
+
+    def find_spec(self, fullname, path=None, target=None):
+        new = self.moved.get(fullname)
+        if new is None:
+            return None
+        return importlib.util.spec_from_loader(fullname, _MovedModuleLoader(new))
+
+
+def install_moved_modules(moved: Mapping[str, str]) -> None:
+    """Make old module paths importable as the modules now at the new paths.
+
+    Parameters
+    ----------
+    moved : mapping of str to str
+        Old dotted module path -> new dotted module path.
+    """
+    if not any(isinstance(f, _MovedModuleFinder) for f in sys.meta_path):
+        sys.meta_path.append(_MovedModuleFinder(moved))

@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ._errors import InputError
+from ._experiment import _COMMAND_RANGES, _ROBOT_RANGES, Experiment
 from ._tables import (
     _FINITE,
     _FRACTION,
@@ -26,8 +28,6 @@ from ._tables import (
     _suggest,
 )
 from .commands import SETTINGS, CommandSettings, build_command, command_names
-from .errors import InputError
-from .experiment import _COMMAND_RANGES, _ROBOT_RANGES, Experiment
 from .forces import PARAMETER_NAMES, registered_parameters
 
 __all__ = [

@@ -33,7 +33,7 @@ from typing import NoReturn
 import numpy as np
 import pandas as pd
 
-from .errors import InputError
+from ._errors import InputError
 
 
 @dataclass(frozen=True)

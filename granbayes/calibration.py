@@ -2,7 +2,7 @@
 
 A verdict such as "the missing physics is drag" is a scientific claim; one data set proves
 nothing. This module makes many data sets whose truth is known and records what
-:func:`granbayes.criticism.diagnose` concludes on each:
+:func:`granbayes._criticism.diagnose` concludes on each:
 
 ``null``
     the truth is the baseline law (``depth`` with a quadratic ``k(phi)``): every verdict
@@ -51,11 +51,11 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from ._criticism import Candidate, DiagnoseSettings, DiagnosisRecord, diagnose, distinguished
+from ._experiment import Experiment, Robot
+from ._sampler import ProgressInfo
 from .commands import COMMAND_NAMES, COMMANDS, CommandSettings
-from .criticism import Candidate, DiagnoseSettings, DiagnosisRecord, diagnose, distinguished
 from .design import candidate_settings, design_jumps
-from .experiment import Experiment, Robot
-from .sampler import ProgressInfo
 from .testing import (
     DepthDependentDrag,
     Effect,
@@ -368,7 +368,7 @@ def as_good_as_truth(deficit: float, se: float, config: DiagnoseSettings | None 
     """Whether a law's fresh-replicate deficit is within the rule's margin.
 
     The rule calls a difference real when it exceeds ``min_gain`` nats *and* ``se_factor``
-    SE (:func:`granbayes.criticism.distinguished`, the test a term must pass to be added);
+    SE (:func:`granbayes._criticism.distinguished`, the test a term must pass to be added);
     a deficit that is not real by that rule counts as predicting as well as the truth.
 
     Parameters
@@ -557,8 +557,8 @@ def diagnose_folder(
     """
     import json
 
+    from ._experiment import load_experiment
     from ._measurements import load_jumps
-    from .experiment import load_experiment
 
     experiment = load_experiment(folder)
     table = load_jumps(folder, experiment)
@@ -656,7 +656,7 @@ def diagnose_miscalibrated(
     import tempfile
     from pathlib import Path
 
-    from .experiment import load_experiment
+    from ._experiment import load_experiment
     from .kinds import load_measurements
 
     data_seed, diag_seed = (
@@ -1098,7 +1098,7 @@ def design_tie_case(
         the design's expected difference and SE, the larger max Pareto k, convergence
         and wall time [s].
     """
-    from .fitting import FitSettings, fit
+    from ._fitting import FitSettings, fit
 
     if kind not in LIBRARY_EFFECTS:
         raise ValueError(f"kind {kind!r}: a library term is needed as the truth")

@@ -33,6 +33,8 @@ CPU budget: the simulator runs on numba threads. A local cluster gets ``n_worker
 single-threaded worker processes (default: one per core) and every task runs with
 ``cores // n_workers`` numba threads, so workers x threads never exceeds the cores. On an
 existing cluster start workers with ``--nthreads 1`` and give ``numba_threads`` (default 1).
+Where a campaign runs is one object, :class:`ClusterSettings`, which every campaign of the
+package takes (``run_campaign``, ``granbayes.run_sbc``, the studies of ``benchmarks/``).
 """
 
 from __future__ import annotations
@@ -48,8 +50,9 @@ import socket
 import time
 import traceback
 import uuid
+import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -62,6 +65,7 @@ if TYPE_CHECKING:
     from distributed import Client
 
 __all__ = [
+    "ClusterSettings",
     "CampaignError",
     "CampaignResult",
     "Task",
@@ -93,6 +97,88 @@ TASK_COLUMNS = (
 
 class CampaignError(ValueError):
     """A campaign that cannot start as asked (unreachable scheduler, foreign folder)."""
+
+
+@dataclass(frozen=True)
+class ClusterSettings:
+    """Where a campaign runs: a local Dask cluster (default) or an existing scheduler.
+
+    Parameters
+    ----------
+    scheduler_address : str, optional
+        Address of an existing Dask scheduler (``tcp://host:port``, e.g. one started by
+        ``dask-jobqueue`` on Slurm or PBS: ``docs/campaigns.md``); default: a
+        ``LocalCluster`` on this machine.
+    n_workers : int, optional
+        Worker processes of the local cluster (default: one per core). Not used with
+        ``scheduler_address`` or a client.
+    numba_threads : int, optional
+        numba threads per task (default: ``cores // n_workers`` on a local cluster, so
+        workers x threads never exceeds the cores; 1 on an existing cluster).
+    connect_timeout_s : float
+        How long to try reaching ``scheduler_address`` [s].
+
+    Raises
+    ------
+    ValueError
+        ``n_workers`` or ``numba_threads`` below 1, a timeout that is not positive.
+    """
+
+    scheduler_address: str | None = None
+    n_workers: int | None = None
+    numba_threads: int | None = None
+    connect_timeout_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        """Refuse settings no cluster can run with."""
+        for name in ("n_workers", "numba_threads"):
+            value = getattr(self, name)
+            if value is not None and int(value) < 1:
+                raise ValueError(f"ClusterSettings.{name} = {value}: must be >= 1")
+        if not float(self.connect_timeout_s) > 0:
+            raise ValueError(
+                f"ClusterSettings.connect_timeout_s = {self.connect_timeout_s}: must be > 0"
+            )
+
+
+#: The keyword arguments that ``run_campaign`` and ``run_sbc`` took before
+#: :class:`ClusterSettings` (deprecated; each is the field of the same name).
+_CLUSTER_KEYWORDS = frozenset(f.name for f in fields(ClusterSettings))
+
+
+def cluster_settings(
+    cluster: ClusterSettings | None, legacy: Mapping[str, Any], where: str
+) -> ClusterSettings:
+    """``cluster``, with the deprecated loose keywords of ``where`` folded in (warned).
+
+    Parameters
+    ----------
+    cluster : ClusterSettings, optional
+        The settings given (default: ``ClusterSettings()``).
+    legacy : mapping
+        Other keyword arguments the caller received; those named like a field of
+        :class:`ClusterSettings` are taken (with a ``DeprecationWarning``), any other is
+        an error.
+    where : str
+        The function's name, for the messages.
+
+    Returns
+    -------
+    ClusterSettings
+    """
+    unknown = sorted(set(legacy) - _CLUSTER_KEYWORDS)
+    if unknown:
+        raise TypeError(f"{where}() got an unexpected keyword argument {unknown[0]!r}")
+    cluster = ClusterSettings() if cluster is None else cluster
+    if legacy:
+        names = ", ".join(sorted(legacy))
+        warnings.warn(
+            f"{where}({names}=...) is deprecated; pass cluster=ClusterSettings({names}=...)",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        cluster = replace(cluster, **legacy)
+    return cluster
 
 
 @dataclass(frozen=True)
@@ -305,14 +391,12 @@ def _lost_record(task: Task, exc: BaseException) -> dict[str, Any]:
 # Cluster connection
 # ----------------------------------------------------------------------------------------
 @contextlib.contextmanager
-def _connect(
-    scheduler_address: str | None,
-    n_workers: int | None,
-    numba_threads: int | None,
-    connect_timeout_s: float,
-) -> Iterator[tuple[Client, int]]:
+def _connect(cluster: ClusterSettings) -> Iterator[tuple[Client, int]]:
     """A Dask client (and the numba threads per task), closed on exit."""
     from distributed import Client, LocalCluster
+
+    scheduler_address, numba_threads = cluster.scheduler_address, cluster.numba_threads
+    connect_timeout_s = cluster.connect_timeout_s
 
     if scheduler_address is not None:
         from distributed.comm.addressing import parse_address, parse_host_port
@@ -337,7 +421,7 @@ def _connect(
         with client:
             yield client, (1 if numba_threads is None else int(numba_threads))
         return
-    workers, threads = local_cluster_size(n_workers)
+    workers, threads = local_cluster_size(cluster.n_workers)
     threads = threads if numba_threads is None else int(numba_threads)
     env = {"NUMBA_NUM_THREADS": str(threads), "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     with (
@@ -445,16 +529,14 @@ def run_campaign(
     out: str | Path,
     *,
     description: Mapping[str, Any],
-    scheduler_address: str | None = None,
-    n_workers: int | None = None,
+    cluster: ClusterSettings | None = None,
     client: Client | None = None,
-    numba_threads: int | None = None,
     resume: bool = False,
     progress: bool = True,
-    connect_timeout_s: float = 10.0,
     results_name: str = "results.csv",
     finalize: Callable[[Path, CampaignResult], None] | None = None,
     log: Callable[[str], None] | None = None,
+    **deprecated: Any,
 ) -> CampaignResult:
     """Run every task on a Dask cluster; write each result atomically; gather a table.
 
@@ -469,24 +551,16 @@ def run_campaign(
         seed). Its SHA-256 is the campaign's fingerprint; resuming a folder made with
         another one is refused. Leave the number of tasks out of it to allow extending a
         campaign on resume.
-    scheduler_address : str, optional
-        Address of an existing Dask scheduler (``tcp://host:port``); default: a local
-        cluster.
-    n_workers : int, optional
-        Worker processes of the local cluster (default: one per core). Not used with
-        ``scheduler_address`` or ``client``.
+    cluster : ClusterSettings, optional
+        Where to run (default: a local cluster sized to the machine).
     client : distributed.Client, optional
-        An already connected client (takes precedence over the two above).
-    numba_threads : int, optional
-        numba threads per task (default: ``cores // n_workers`` on a local cluster, 1
-        otherwise).
+        An already connected client (takes precedence over ``cluster``'s scheduler and
+        workers; its ``numba_threads`` still applies, default 1).
     resume : bool
         Keep the results already in ``OUT.partial`` (or in a finished ``OUT`` of the same
         campaign) and compute only the missing or failed tasks.
     progress : bool
         Show one progress bar over the tasks (stderr).
-    connect_timeout_s : float
-        How long to try reaching ``scheduler_address`` [s].
     results_name : str
         File name of the tidy results table.
     finalize : callable, optional
@@ -494,6 +568,9 @@ def run_campaign(
         the work folder before it replaces ``out``.
     log : callable, optional
         Receives one-line progress messages.
+    **deprecated
+        ``scheduler_address``, ``n_workers``, ``numba_threads``, ``connect_timeout_s``:
+        the former loose form of ``cluster`` (``DeprecationWarning``).
 
     Returns
     -------
@@ -508,6 +585,7 @@ def run_campaign(
         Duplicate or malformed task ids, ``n_workers < 1``.
     """
     t_start = time.perf_counter()
+    cluster = cluster_settings(cluster, deprecated, "run_campaign")
     out = Path(out)
     say = log or (lambda _msg: None)
     ids = [t.task_id for t in tasks]
@@ -524,11 +602,9 @@ def run_campaign(
 
     with contextlib.ExitStack() as stack:
         if client is None:
-            client, threads = stack.enter_context(
-                _connect(scheduler_address, n_workers, numba_threads, connect_timeout_s)
-            )
+            client, threads = stack.enter_context(_connect(cluster))
         else:
-            threads = 1 if numba_threads is None else int(numba_threads)
+            threads = 1 if cluster.numba_threads is None else int(cluster.numba_threads)
         work = stack.enter_context(staged_folder(out, resume))
         tasks_dir = work / "tasks"
         if reuse is not None and not tasks_dir.exists():

@@ -60,11 +60,11 @@ import numpy as np
 import pandas as pd
 from scipy.special import logsumexp
 
+from ._criticism import DiagnoseSettings
+from ._likelihood import Observations
+from ._saved import SavedFit, as_saved_fit, load_fit
 from .commands import COMMAND_NAMES, COMMANDS
-from .criticism import DiagnoseSettings
 from .forces import terms_of
-from .likelihood import Observations
-from .saved import SavedFit, as_saved_fit, load_fit
 
 __all__ = [
     "Design",
@@ -795,7 +795,7 @@ def save_tie_laws(diagnosis: object, folder: str | Path) -> list[Path]:
 
     Parameters
     ----------
-    diagnosis : granbayes.criticism.Diagnosis
+    diagnosis : granbayes._criticism.Diagnosis
         An in-memory diagnosis (its ``record`` and ``fits``).
     folder : str or Path
         The diagnosis folder.
@@ -805,7 +805,7 @@ def save_tie_laws(diagnosis: object, folder: str | Path) -> list[Path]:
     list of Path
         Files written (none when the diagnosis has no tie).
     """
-    from . import datatree as gdt
+    from . import _datatree as gdt
 
     folder = Path(folder)
     written = []
@@ -847,7 +847,7 @@ def design_from_diagnosis(
     max_jumps, n_draws, rng
         As :func:`design_jumps`.
     data_sha256 : str, optional
-        The measurements' hash (:func:`granbayes.fitting.data_hash`): checked against
+        The measurements' hash (:func:`granbayes._fitting.data_hash`): checked against
         the diagnosed data's before anything is computed.
 
     Returns

@@ -2,7 +2,11 @@
 
 Figures are built with matplotlib's object API (no pyplot state), corner plots with
 ``corner`` (>= 2.3) from plain arrays, and trace/rank plots through the ArviZ adapter
-(:mod:`granbayes.datatree`).
+(:mod:`granbayes._datatree`).
+
+Also public here, for scripts that write results of their own (``analyses/``):
+:func:`staged_folder` (an output folder built as ``OUT.partial`` and swapped in whole)
+and :func:`environment` (the package versions and the machine, for provenance).
 """
 
 from __future__ import annotations
@@ -18,13 +22,17 @@ import pandas as pd
 import xarray as xr
 from matplotlib.figure import Figure
 
-from . import datatree as gdt
+from . import _datatree as gdt
 from . import figures, stats
+from ._files import staged_folder
+from ._provenance import environment
 from .kinds import KINDS
 
 __all__ = [
+    "environment",
     "load_truth",
     "markdown_table",
+    "staged_folder",
     "write_diagnosis_report",
     "write_fit_report",
 ]
@@ -94,7 +102,7 @@ def write_fit_report(
     truth : mapping, optional
         Synthetic truth per volume fraction (overlaid on figures, compared in the summary).
     uniqueness : pandas.DataFrame, optional
-        Output of :func:`granbayes.fitting.compare_commands`.
+        Output of :func:`granbayes._fitting.compare_commands`.
     diagnostics_plots : bool
         Whether to draw trace and rank plots.
 

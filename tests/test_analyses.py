@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 
 from granbayes import COMMAND_NAMES
-from granbayes.synthetic import REFERENCE_DATA
+from granbayes._synthetic import REFERENCE_DATA
 
 ROOT = Path(__file__).resolve().parents[1]
 ANALYSES = ROOT / "analyses"

@@ -1,4 +1,4 @@
-"""The analysis modules of the package: granbayes.analysis, maps, optimal, mechanics, figures.
+"""The analysis modules of the package: granbayes.analysis (maps, optimal, mechanics), figures.
 
 Fast, seeded unit tests of what the scripts of ``analyses/`` are built from (the scripts
 themselves run end to end in tests/test_analyses.py). Posteriors here are small
@@ -22,14 +22,12 @@ from granbayes import (
     Experiment,
     InputError,
     figures,
-    maps,
-    mechanics,
-    optimal,
     simulate,
     simulate_trajectory,
 )
 from granbayes import analysis as an
 from granbayes import stats as gstats
+from granbayes.analysis import maps, mechanics, optimal
 
 PHI_C = 0.612
 SYNTHETIC = "SYNTHETIC (tests/test_analysis_modules.py)"
@@ -75,7 +73,7 @@ def synthetic_jumps(rng: np.random.Generator, law: dict[str, float], n: int = 4)
 
 
 # ---------------------------------------------------------------------------------------
-# granbayes.analysis
+# granbayes.analysis._summaries
 # ---------------------------------------------------------------------------------------
 def test_interval_is_the_median_and_equal_tailed_quantiles_ignoring_nan() -> None:
     values = np.r_[np.arange(101.0), np.nan]
@@ -150,7 +148,7 @@ def test_mean_discrepancy_and_posterior_intervals(rng: np.random.Generator) -> N
 
 
 # ---------------------------------------------------------------------------------------
-# granbayes.maps
+# granbayes.analysis.maps
 # ---------------------------------------------------------------------------------------
 def test_refine_interpolates_in_log_k_and_spreads_failures() -> None:
     h = np.array([[0.0, 10.0], [4.0, np.nan], [8.0, 30.0]])
@@ -222,7 +220,7 @@ def test_misfit_map_accepts_the_generating_law(rng: np.random.Generator) -> None
 
 
 # ---------------------------------------------------------------------------------------
-# granbayes.optimal
+# granbayes.analysis.optimal
 # ---------------------------------------------------------------------------------------
 def measured() -> pd.DataFrame:
     return pd.DataFrame({"amplitude_mm": [20.0, 20.0], "freq_hz": [8.0, 12.0]})
@@ -291,7 +289,7 @@ def test_draws_at_refuses_a_posterior_without_sigma(rng: np.random.Generator) ->
 
 
 # ---------------------------------------------------------------------------------------
-# granbayes.mechanics
+# granbayes.analysis.mechanics
 # ---------------------------------------------------------------------------------------
 def test_advancing_episodes_and_the_stieltjes_sum() -> None:
     """Two episodes; the cone grows in the first only; shedding carries no impulse."""
@@ -342,7 +340,7 @@ def test_rigid_floor_sweep_power_and_refined_optimum() -> None:
 
 
 # ---------------------------------------------------------------------------------------
-# granbayes.plots: the remaining analysis figures
+# granbayes.figures: the remaining analysis figures
 # ---------------------------------------------------------------------------------------
 def test_heights_kappa_and_coefficient_figures(rng: np.random.Generator) -> None:
     table = synthetic_jumps(rng, {"k": 3000.0, "c_d": 20.0}, n=3)

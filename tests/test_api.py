@@ -22,10 +22,10 @@ import pytest
 import xarray as xr
 
 import granbayes as gb
-from granbayes.cli import EXIT_INPUT, EXIT_OK, main
+from granbayes._cli import EXIT_INPUT, EXIT_OK, main
+from granbayes._synthetic import write_experiment
 from granbayes.report import write_fit_report
 from granbayes.stats import IDENTIFIABILITY_LEVELS, identifiability_table, loo, loo_pit
-from granbayes.synthetic import write_experiment
 from granbayes.testing import synthetic_jumps
 
 SHORT = gb.SamplerSettings(
@@ -99,10 +99,10 @@ def quadratic(folder: Path) -> gb.FitResult:
 
 
 def test_public_names_are_the_functions_and_classes() -> None:
-    import granbayes.fitting as fitting_module
+    import granbayes._fitting as fitting_module
 
     assert callable(gb.fit) and gb.fit is fitting_module.fit
-    assert gb.fit.__module__ == "granbayes.fitting"
+    assert gb.fit.__module__ == "granbayes._fitting"
     for name in ("fit", "diagnose", "load_fit", "predict", "compare_commands", "residual_table"):
         assert callable(getattr(gb, name)), name
         assert not isinstance(getattr(gb, name), type(fitting_module)), name
@@ -121,9 +121,9 @@ def test_public_names_are_the_functions_and_classes() -> None:
         ("granbayes", "FitConfig", "FitSettings"),
         ("granbayes", "DiagnoseConfig", "DiagnoseSettings"),
         ("granbayes", "SolverOptions", "SolverSettings"),
-        ("granbayes.fitting", "FitConfig", "FitSettings"),
-        ("granbayes.criticism", "DiagnoseConfig", "DiagnoseSettings"),
-        ("granbayes.simulator", "SolverOptions", "SolverSettings"),
+        ("granbayes._fitting", "FitConfig", "FitSettings"),
+        ("granbayes._criticism", "DiagnoseConfig", "DiagnoseSettings"),
+        ("granbayes._simulator", "SolverOptions", "SolverSettings"),
     ],
 )
 def test_former_names_of_the_settings_are_deprecated_aliases(
@@ -482,8 +482,8 @@ def test_single_jump_setting_flags(capsys) -> None:
 
 def test_diagnose_progress_labels_name_law_and_run() -> None:
     """diagnose hands every fit a progress callback labelled by law and run."""
-    from granbayes.criticism._bank import FitBank
-    from granbayes.sampler import ProgressInfo
+    from granbayes._criticism._bank import FitBank
+    from granbayes._sampler import ProgressInfo
 
     seen = []
     bank = FitBank(
@@ -500,8 +500,8 @@ def test_diagnose_progress_labels_name_law_and_run() -> None:
 
 def test_progress_bars_one_per_run(monkeypatch: pytest.MonkeyPatch) -> None:
     """ProgressBars: one bar per label; with leave=False removed once the run ends."""
-    from granbayes.cli import ProgressBars
-    from granbayes.sampler import ProgressInfo
+    from granbayes._cli import ProgressBars
+    from granbayes._sampler import ProgressInfo
 
     bars = ProgressBars(quiet=False, leave=False)
     bars.enabled = True  # as on a terminal

@@ -16,17 +16,17 @@ import pandas as pd
 import pytest
 
 from granbayes import COMMAND_NAMES, Experiment, build_command
-from granbayes.experiment import load_experiment
-from granbayes.fitting import FitSettings, fit, part_models
-from granbayes.likelihood import JumpModel, Observations
-from granbayes.prediction import predict
-from granbayes.priors import Prior, calibration_priors, default_priors
+from granbayes._experiment import load_experiment
+from granbayes._fitting import FitSettings, fit, part_models
+from granbayes._likelihood import JumpModel, Observations
+from granbayes._prediction import predict
+from granbayes._priors import Prior, calibration_priors, default_priors
+from granbayes._sampler import SamplerSettings
+from granbayes._saved import load_fit
+from granbayes._sbc import draw_replicate
+from granbayes._simulator import build_rows, simulate_frames_rows, simulate_rows
+from granbayes._synthetic import write_experiment
 from granbayes.report import write_fit_report
-from granbayes.sampler import SamplerSettings
-from granbayes.saved import load_fit
-from granbayes.sbc import draw_replicate
-from granbayes.simulator import build_rows, simulate_frames_rows, simulate_rows
-from granbayes.synthetic import write_experiment
 from granbayes.testing import synthetic_jumps
 
 TINY = SamplerSettings(n_walkers=8, n_ensembles=2, check_every=50, max_steps=100, n_draws=30)
@@ -209,7 +209,7 @@ def test_sbc_draws_the_robot_from_its_calibration_whatever_the_fit_does(table) -
 
 
 def test_what_is_not_sampled_is_said_to_be_taken_as_exact() -> None:
-    from granbayes.fitting import _warnings
+    from granbayes._fitting import _warnings
 
     exp = dataclasses.replace(
         Experiment(), calibration_sd=(("k_spring", 150.0), ("freq_hz", 0.1)), phi_sd=0.002
@@ -223,7 +223,7 @@ def test_what_is_not_sampled_is_said_to_be_taken_as_exact() -> None:
 
 def test_one_set_of_calibrated_keys() -> None:
     """The model's sampled keys, the priors' units and the experiment's values agree."""
-    from granbayes.likelihood import CALIBRATED_KEYS
-    from granbayes.priors import CALIBRATION_UNITS
+    from granbayes._likelihood import CALIBRATED_KEYS
+    from granbayes._priors import CALIBRATION_UNITS
 
     assert set(CALIBRATION_UNITS) == set(CALIBRATED_KEYS) == set(Experiment().robot_values)

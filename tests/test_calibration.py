@@ -273,7 +273,7 @@ def test_a_case_row_scores_the_selected_law_on_fresh_data() -> None:
     laws' log predictive density gain on the replicate data is positive (the truth
     predicts new jumps better), as is the in-sample estimate.
     """
-    from granbayes.criticism import DiagnoseSettings
+    from granbayes._criticism import DiagnoseSettings
 
     config = DiagnoseSettings(candidates=("drag",), sampler=QUICK_SAMPLER, n_threads=1)
     (row,) = diagnose_case("drag", 0, config, seed=11, step_budget=None)

@@ -26,6 +26,7 @@ from distributed import Client, LocalCluster
 
 from granbayes.campaign import (
     CampaignError,
+    ClusterSettings,
     Task,
     campaign_fingerprint,
     local_cluster_size,
@@ -192,12 +193,41 @@ def test_unreachable_scheduler_is_refused_with_nothing_written(tmp_path: Path) -
     t0 = time.perf_counter()
     with pytest.raises(CampaignError, match="no Dask scheduler could be reached within 1 s"):
         run_campaign(
-            tasks_of(2), out, description={}, scheduler_address=address, connect_timeout_s=1
+            tasks_of(2),
+            out,
+            description={},
+            cluster=ClusterSettings(scheduler_address=address, connect_timeout_s=1),
         )
     assert time.perf_counter() - t0 < 30
     with pytest.raises(CampaignError, match="not a Dask address"):
-        run_campaign(tasks_of(2), out, description={}, scheduler_address="no-port-here")
+        run_campaign(
+            tasks_of(2),
+            out,
+            description={},
+            cluster=ClusterSettings(scheduler_address="no-port-here"),
+        )
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_former_loose_cluster_keywords_are_deprecated(tmp_path: Path) -> None:
+    """``scheduler_address=`` etc. still work (as ``ClusterSettings`` fields), with a warning
+    that names the new form; a keyword that was never one is a TypeError."""
+    with (
+        pytest.warns(DeprecationWarning, match=r"cluster=ClusterSettings\(scheduler_address"),
+        pytest.raises(CampaignError, match="not a Dask address"),
+    ):
+        run_campaign(tasks_of(2), tmp_path / "c", description={}, scheduler_address="nowhere")
+    with pytest.raises(TypeError, match="unexpected keyword argument 'n_worker'"):
+        run_campaign(tasks_of(2), tmp_path / "c", description={}, n_worker=2)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("field", "value"), [("n_workers", 0), ("numba_threads", 0), ("connect_timeout_s", 0.0)]
+)
+def test_cluster_settings_refuse_what_cannot_run(field: str, value: float) -> None:
+    with pytest.raises(ValueError, match=f"ClusterSettings.{field}"):
+        ClusterSettings(**{field: value})
 
 
 def test_worker_killed_mid_task_is_retried_and_the_campaign_completes(tmp_path: Path) -> None:

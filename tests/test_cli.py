@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 
 from granbayes import __version__
-from granbayes.cli import (
+from granbayes._cli import (
     EXIT_FAILED_JUMP,
     EXIT_INPUT,
     EXIT_OK,
@@ -24,12 +24,12 @@ from granbayes.cli import (
     atomic_path,
     main,
 )
+from granbayes._datatree import read_datatree
+from granbayes._experiment import Experiment, load_experiment
+from granbayes._sampler import ProgressInfo
+from granbayes._simulator import Heights, Status, simulate, simulate_table
+from granbayes._synthetic import write_experiment
 from granbayes.commands import COMMAND_NAMES
-from granbayes.datatree import read_datatree
-from granbayes.experiment import Experiment, load_experiment
-from granbayes.sampler import ProgressInfo
-from granbayes.simulator import Heights, Status, simulate, simulate_table
-from granbayes.synthetic import write_experiment
 from granbayes.testing import synthetic_jumps
 
 REFERENCE_HEIGHTS = Path(__file__).resolve().parent / "data" / "reference-heights.csv"
@@ -86,7 +86,7 @@ def granbayes_program() -> list[str]:
     if script.is_file():
         return [str(script)]
     found = shutil.which("granbayes")
-    return [found] if found else [sys.executable, "-m", "granbayes.cli"]
+    return [found] if found else [sys.executable, "-m", "granbayes._cli"]
 
 
 # ----------------------------------------------------------------------------------------

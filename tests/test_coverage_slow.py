@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 
 from granbayes import Experiment
-from granbayes.fitting import FitSettings, fit
-from granbayes.sampler import SamplerSettings
+from granbayes._fitting import FitSettings, fit
+from granbayes._sampler import SamplerSettings
 from granbayes.testing import synthetic_jumps
 
 TRUE_K = 4000.0  # N/m, depth-only law

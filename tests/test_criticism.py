@@ -17,11 +17,11 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-import granbayes.datatree as gdt
+import granbayes._datatree as gdt
 import granbayes.stats as gstats
 from granbayes import Experiment
-from granbayes.cli import EXIT_UNCONVERGED, main
-from granbayes.criticism import (
+from granbayes._cli import EXIT_UNCONVERGED, main
+from granbayes._criticism import (
     Candidate,
     DiagnoseSettings,
     Estimate,
@@ -31,10 +31,10 @@ from granbayes.criticism import (
     rivals,
     verdict,
 )
+from granbayes._synthetic import write_experiment
 from granbayes.design import load_tie, save_tie_laws
 from granbayes.report import write_diagnosis_report
 from granbayes.stats import CELL_KEYS, describe_cell, misfit_threshold, residual_table
-from granbayes.synthetic import write_experiment
 from granbayes.testing import QUICK_SAMPLER, synthetic_jumps
 
 #: Short sampler settings for the loop (the test kit's: R-hat across two ensembles <= 1.05,
@@ -80,7 +80,7 @@ def drag_case():
     Returns the table, the configuration, the Diagnosis (seed 2) and every fit it made
     (keyed by :func:`_fit_key`, reruns and held-out refits included).
     """
-    import granbayes.criticism._bank as gc
+    import granbayes._criticism._bank as gc
 
     table = _table({"c_d": 150.0})
     config = DiagnoseSettings(candidates=("drag",), sampler=FAST, n_threads=1)
@@ -582,7 +582,7 @@ def test_diagnosis_json_contract(drag_case, drag_report: Path) -> None:
 def test_diagnosis_json_round_trips_through_the_typed_record(drag_case) -> None:
     """The typed record writes diagnosis.json and reads it back unchanged; the verdict is a
     :class:`Verdict` (equal to its JSON string) and candidates carry their ``Estimate``."""
-    from granbayes.criticism import DiagnosisRecord, Estimate, Verdict
+    from granbayes._criticism import DiagnosisRecord, Estimate, Verdict
 
     _, _, d, _ = drag_case
     doc = json.loads(json.dumps(d.to_json(), default=float))
@@ -619,7 +619,7 @@ def test_the_rule_not_the_fits_decides(drag_case, monkeypatch: pytest.MonkeyPatc
     misfit is then left in place, so the verdict is "misfit_remains" and the residual
     misfit is the baseline's.
     """
-    import granbayes.criticism._bank as gc
+    import granbayes._criticism._bank as gc
 
     table, config, extended, fits = drag_case
     calls = []
@@ -688,7 +688,7 @@ def test_cli_diagnose_unconverged_exits_4(tmp_path: Path, capsys) -> None:
 def test_diagnose_bad_input_is_refused_before_any_fit(tmp_path: Path, capsys, monkeypatch):
     """Unknown term, one ensemble and bad data: exit 2, one line, nothing written, no
     sampling."""
-    import granbayes.criticism._bank as gc
+    import granbayes._criticism._bank as gc
 
     monkeypatch.setattr(gc, "fit", lambda *a, **k: pytest.fail("sampled despite bad input"))
     table = _table({})
@@ -723,7 +723,7 @@ def test_screen_gain_is_large_for_the_hidden_term_and_small_for_another(drag_cas
     stiffening term (absent from the data) gains less than ``min_gain``. Gains are >= 0
     by construction (the search starts at the parent's best draw with the term off).
     """
-    from granbayes.fitting import FitSettings, screen
+    from granbayes._fitting import FitSettings, screen
 
     table, _, d, _ = drag_case
     parent = d.baseline.datatree
@@ -738,7 +738,7 @@ def test_screen_gain_is_large_for_the_hidden_term_and_small_for_another(drag_cas
 def test_screening_side_by_side_is_screening_one_by_one(drag_case) -> None:
     """``screen_many`` (every candidate's searches sharing simulator calls) gives each
     candidate exactly the gain ``screen`` gives it alone (same seeds: the same search)."""
-    from granbayes.fitting import FitSettings, screen, screen_many
+    from granbayes._fitting import FitSettings, screen, screen_many
 
     table, _, d, _ = drag_case
     parent = d.baseline.datatree

@@ -19,8 +19,11 @@ import pytest
 from scipy import integrate, stats
 
 from granbayes import Experiment
-from granbayes import datatree as gdt
-from granbayes.cli import EXIT_INPUT, EXIT_OK, main
+from granbayes import _datatree as gdt
+from granbayes._cli import EXIT_INPUT, EXIT_OK, main
+from granbayes._fitting import FitSettings, fit
+from granbayes._sampler import SamplerSettings
+from granbayes._synthetic import write_experiment
 from granbayes.design import (
     LawDraws,
     candidate_settings,
@@ -30,9 +33,6 @@ from granbayes.design import (
     save_tie_laws,
     ties_of,
 )
-from granbayes.fitting import FitSettings, fit
-from granbayes.sampler import SamplerSettings
-from granbayes.synthetic import write_experiment
 from granbayes.testing import synthetic_jumps
 
 #: One worker for the module: its tiny fits (a module fixture) are made once.

@@ -15,9 +15,10 @@ import importlib.util
 import re
 from pathlib import Path
 
-from granbayes import criticism, stats
-from granbayes.cli import SUBCOMMANDS
-from granbayes.priors import load_priors
+from granbayes import _criticism as criticism
+from granbayes import stats
+from granbayes._cli import SUBCOMMANDS
+from granbayes._priors import load_priors
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -68,7 +69,7 @@ def test_every_subcommand_is_documented() -> None:
 
 def _record_keys() -> set[str]:
     """Every key the typed diagnosis record writes: the JSON keys of its dataclasses."""
-    from granbayes.criticism import _record
+    from granbayes._criticism import _record
 
     keys = {"all_converged", "versions", "machine"}
     for record in (

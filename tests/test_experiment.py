@@ -20,6 +20,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import granbayes._tables as experiment_module
+from granbayes._errors import InputError
+from granbayes._experiment import Experiment, Robot, load_experiment
 from granbayes._measurements import (
     BATCH_EXPERIMENT_COLUMNS,
     BATCH_FORCE_COLUMNS,
@@ -27,8 +29,6 @@ from granbayes._measurements import (
     load_jumps,
 )
 from granbayes.commands import COMMAND_NAMES, CommandSettings
-from granbayes.errors import InputError
-from granbayes.experiment import Experiment, Robot, load_experiment
 
 REFERENCE_HEIGHTS = Path(__file__).resolve().parent / "data" / "reference-heights.csv"
 
@@ -644,7 +644,7 @@ def test_force_registry_docstring_examples() -> None:
 # Bulk checks against a per-cell reference
 # --------------------------------------------------------------------------------------
 #
-# The loaders check whole columns in bulk (granbayes.experiment, "The same checks for whole
+# The loaders check whole columns in bulk (granbayes._experiment, "The same checks for whole
 # columns"). The reference below is the plain per-cell algorithm, written out here on its
 # own: the csv module record by record, every cell through float(). On random small tables
 # with random bad cells, both must name the same first bad cell with the same message, or

@@ -23,9 +23,9 @@ import pytest
 import xarray as xr
 from scipy import stats
 
-import granbayes.fitting as gfit
+import granbayes._fitting as gfit
+import granbayes._sampler as gsampler
 import granbayes.report as greport
-import granbayes.sampler as gsampler
 import granbayes.stats as gstats
 from granbayes import (
     COMMAND_NAMES,
@@ -34,10 +34,10 @@ from granbayes import (
     load_jumps,
     simulate,
 )
-from granbayes.cli import EXIT_INPUT, EXIT_OK, main
-from granbayes.criticism import DiagnoseSettings
-from granbayes.datatree import read_datatree, write_datatree
-from granbayes.fitting import (
+from granbayes._cli import EXIT_INPUT, EXIT_OK, main
+from granbayes._criticism import DiagnoseSettings
+from granbayes._datatree import read_datatree, write_datatree
+from granbayes._fitting import (
     CommandComparison,
     FitResult,
     FitSettings,
@@ -45,14 +45,14 @@ from granbayes.fitting import (
     data_hash,
     fit,
 )
-from granbayes.priors import default_priors
-from granbayes.sampler import (
+from granbayes._priors import default_priors
+from granbayes._sampler import (
     CheckpointMismatchError,
     ProgressInfo,
     SamplerSettings,
     load_checkpoint,
 )
-from granbayes.synthetic import write_experiment
+from granbayes._synthetic import write_experiment
 from granbayes.testing import synthetic_jumps
 
 #: The synthetic truth: a depth-only law [N/m] and the trial-to-trial scatter [mm].

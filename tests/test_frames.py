@@ -26,10 +26,8 @@ import pytest
 
 import granbayes as gb
 from granbayes import _kernel
-from granbayes.commands import COMMAND_NAMES, build_command
-from granbayes.experiment import Experiment, Robot
-from granbayes.forces import PARAMETER_NAMES, TERMS, typical_ranges
-from granbayes.simulator import (
+from granbayes._experiment import Experiment, Robot
+from granbayes._simulator import (
     FRAME_COLUMNS,
     MAX_FRAME_AFTER_S,
     SolverSettings,
@@ -42,6 +40,8 @@ from granbayes.simulator import (
     simulate_rows,
     simulate_trajectory,
 )
+from granbayes.commands import COMMAND_NAMES, build_command
+from granbayes.forces import PARAMETER_NAMES, TERMS, typical_ranges
 
 #: A law with every term of the library on (realistic values).
 LAW = {

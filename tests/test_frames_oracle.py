@@ -31,10 +31,10 @@ import importlib
 import numpy as np
 import pytest
 
+from granbayes._experiment import Experiment, Robot
+from granbayes._simulator import SolverSettings, intrusion_force, simulate_frames
 from granbayes.commands import COMMAND_NAMES, CommandSettings, build_command
-from granbayes.experiment import Experiment, Robot
 from granbayes.forces import TERMS
-from granbayes.simulator import SolverSettings, intrusion_force, simulate_frames
 
 _testing = importlib.import_module("granbayes.testing")
 if not (

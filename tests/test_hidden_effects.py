@@ -49,10 +49,10 @@ import pandas as pd
 import pytest
 
 from granbayes import CommandSettings, Experiment, Robot, stats
+from granbayes._criticism import DiagnoseSettings, diagnose, distinguished
+from granbayes._fitting import FitSettings, fit
 from granbayes.calibration import OUT_OF_LIBRARY, as_good_as_truth, fresh_deficit, make_case
-from granbayes.criticism import DiagnoseSettings, diagnose, distinguished
 from granbayes.design import candidate_settings, design_jumps
-from granbayes.fitting import FitSettings, fit
 from granbayes.forces import terms_of
 from granbayes.testing import simulate_height_scipy, synthetic_jumps
 

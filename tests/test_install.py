@@ -89,7 +89,7 @@ def test_wheel_contents(installed) -> None:
         assert f"granbayes/data/reference/{name}" in names
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
-    assert "granbayes = granbayes.cli:main" in zipfile.ZipFile(wheel).read(entry_points).decode()
+    assert "granbayes = granbayes._cli:main" in zipfile.ZipFile(wheel).read(entry_points).decode()
 
 
 def test_installed_package_is_the_wheel(installed) -> None:
@@ -97,7 +97,7 @@ def test_installed_package_is_the_wheel(installed) -> None:
     _, bindir, work = installed
     code = (
         "import json, granbayes\n"
-        "from granbayes.cli import REFERENCE_DATA\n"
+        "from granbayes._cli import REFERENCE_DATA\n"
         "from granbayes import load_experiment, load_jumps\n"
         "t = load_jumps(REFERENCE_DATA, load_experiment(REFERENCE_DATA))\n"
         "print(json.dumps({'file': granbayes.__file__, 'data': str(REFERENCE_DATA),"
@@ -126,7 +126,7 @@ def test_demo_and_a_fit_from_the_wheel(installed) -> None:
     assert (work / "demo" / "jumps.png").stat().st_size > 0
 
     code = (
-        "from granbayes.synthetic import REFERENCE_DATA\n"
+        "from granbayes._synthetic import REFERENCE_DATA\n"
         "import pandas as pd, shutil, sys\n"
         "shutil.copy(REFERENCE_DATA / 'experiment.toml', 'small/experiment.toml')\n"
         "t = pd.read_csv(REFERENCE_DATA / 'jumps.csv')\n"

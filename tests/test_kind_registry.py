@@ -19,13 +19,13 @@ import pandas as pd
 import pytest
 import xarray as xr
 
-from granbayes.cli import EXIT_OK, main
-from granbayes.datatree import read_datatree
-from granbayes.experiment import Experiment
+from granbayes._cli import EXIT_OK, main
+from granbayes._datatree import read_datatree
+from granbayes._experiment import Experiment
+from granbayes._likelihood import Block, Coordinate, Law, Simulated
+from granbayes._priors import Prior
+from granbayes._synthetic import write_experiment
 from granbayes.kinds import KINDS, Kind, register_kind
-from granbayes.likelihood import Block, Coordinate, Law, Simulated
-from granbayes.priors import Prior
-from granbayes.synthetic import write_experiment
 from granbayes.testing import synthetic_jumps
 
 K_TRUE = 2500.0

@@ -14,11 +14,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from granbayes.cli import EXIT_INPUT, EXIT_OK, main
-from granbayes.datatree import read_datatree
-from granbayes.experiment import Experiment, load_experiment
+from granbayes._cli import EXIT_INPUT, EXIT_OK, main
+from granbayes._datatree import read_datatree
+from granbayes._experiment import Experiment, load_experiment
+from granbayes._likelihood import ObservationSettings, Simulated, TrajectoryBlock
 from granbayes.kinds import KINDS, kind_names, load_measurements
-from granbayes.likelihood import ObservationSettings, Simulated, TrajectoryBlock
 from granbayes.testing import LabDesign, synthetic_lab_data, write_lab_experiment
 
 TRUTH = {"k": 3000.0, "c_d": 20.0}
@@ -298,7 +298,7 @@ def _offset_error(step_ms: float) -> float:
     offsets across the prior (no linearisation; the quadrature's own error is < 1e-4
     nats: 80,001 points give the same value to 4 decimals).
     """
-    from granbayes.simulator import simulate_frames
+    from granbayes._simulator import simulate_frames
 
     dt = 2e-3
     t = np.arange(-0.01, 0.15, dt)
@@ -364,7 +364,7 @@ def test_hidden_effect_heights_barely_show_is_found_in_the_trajectories(tmp_path
     on heights and tracked jumps it finds the misfit in the trajectories and names
     ``viscous``. Candidates are limited to viscous, stiffening and added mass to keep the
     test to a few minutes."""
-    from granbayes.criticism import DiagnoseSettings, diagnose
+    from granbayes._criticism import DiagnoseSettings, diagnose
 
     truth = {"k": 3000.0, "c_d": 20.0, "b": 2.0}
     data = synthetic_lab_data(truth, seed=21, design=HIDDEN_VISCOUS)

@@ -23,7 +23,7 @@ import pandas as pd
 import pytest
 
 from granbayes import load_experiment, load_jumps
-from granbayes.experiment import Experiment
+from granbayes._experiment import Experiment
 from granbayes.testing import (
     LabDesign,
     RateStiffening,

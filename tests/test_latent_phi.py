@@ -19,16 +19,16 @@ from scipy.integrate import trapezoid
 from scipy.special import logsumexp
 
 from granbayes import Experiment
-from granbayes import datatree as gdt
-from granbayes.experiment import load_experiment
-from granbayes.fitting import FitSettings, _make_model, _warnings, fit
+from granbayes import _datatree as gdt
+from granbayes._experiment import load_experiment
+from granbayes._fitting import FitSettings, _make_model, _warnings, fit
+from granbayes._likelihood import BedPhi, HeightBlock, IntrusionBlock, JumpModel, Observations
+from granbayes._prediction import predict
+from granbayes._priors import default_priors
+from granbayes._sampler import SamplerSettings
+from granbayes._saved import load_fit
+from granbayes._simulator import intrusion_force
 from granbayes.kinds import load_measurements
-from granbayes.likelihood import BedPhi, HeightBlock, IntrusionBlock, JumpModel, Observations
-from granbayes.prediction import predict
-from granbayes.priors import default_priors
-from granbayes.sampler import SamplerSettings
-from granbayes.saved import load_fit
-from granbayes.simulator import intrusion_force
 from granbayes.testing import LabDesign, synthetic_lab_data, write_lab_experiment
 
 #: One module fixture (a small fit) for two of its tests, ~35 s in all: run first

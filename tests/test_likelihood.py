@@ -1,4 +1,4 @@
-"""Unit tests of the likelihood (``granbayes.likelihood``) and the priors (``granbayes.priors``).
+"""Unit tests of the likelihood (``granbayes._likelihood``) and the priors (``granbayes._priors``).
 
 Everything here is cheap: the log-likelihood is checked against scipy given fixed simulated
 heights (no integration), and the few tests that simulate use one walker per config.
@@ -15,9 +15,9 @@ import pytest
 import scipy.stats
 
 from granbayes import Experiment, InputError, SolverSettings
+from granbayes._likelihood import JumpModel, Observations
+from granbayes._priors import Prior, default_priors, load_priors
 from granbayes.commands import SETTINGS as SETTING_COLUMNS
-from granbayes.likelihood import JumpModel, Observations
-from granbayes.priors import Prior, default_priors, load_priors
 
 EXPERIMENT = Experiment()
 CONFIG_COLUMNS = ["phi", "command", *SETTING_COLUMNS]

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from granbayes import Experiment
-from granbayes.criticism import DiagnoseSettings
-from granbayes.criticism._bank import FitBank, Pointwise
+from granbayes._criticism import DiagnoseSettings
+from granbayes._criticism._bank import FitBank, Pointwise
 from granbayes.testing import QUICK_SAMPLER, synthetic_jumps
 
 PHIS = (0.602, 0.622)

@@ -17,8 +17,8 @@ import math
 import numpy as np
 import pytest
 
+from granbayes._experiment import Experiment, G, Robot
 from granbayes.commands import build_command
-from granbayes.experiment import Experiment, G, Robot
 from granbayes.testing import (
     DepthDependentDrag,
     JanssenSaturation,

@@ -16,8 +16,8 @@ import math
 import numpy as np
 import pytest
 
+from granbayes._experiment import Experiment, G
 from granbayes.commands import build_command
-from granbayes.experiment import Experiment, G
 from granbayes.testing import (
     TRACK_AFTER_END,
     intrusion_force_scipy,

@@ -105,8 +105,8 @@ def test_licence() -> None:
 def test_reference_data_is_package_data() -> None:
     """The demo's data set lives inside the package and the package data pattern ships all
     of it; no module builds a path above its own folder."""
-    from granbayes.cli import REFERENCE_DATA as cli_reference
-    from granbayes.synthetic import REFERENCE_DATA
+    from granbayes._cli import REFERENCE_DATA as cli_reference
+    from granbayes._synthetic import REFERENCE_DATA
 
     assert cli_reference == REFERENCE_DATA
     assert REFERENCE_DATA.resolve().is_relative_to(PACKAGE)

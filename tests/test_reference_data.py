@@ -20,7 +20,7 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 from granbayes import CommandSettings, Experiment, load_experiment, load_jumps, simulate
-from granbayes.synthetic import REFERENCE_DATA
+from granbayes._synthetic import REFERENCE_DATA
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = REFERENCE_DATA

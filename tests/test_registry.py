@@ -29,13 +29,13 @@ import xarray as xr
 
 import granbayes
 from granbayes import forces, load_batch_table
-from granbayes.cli import EXIT_OK, main
-from granbayes.criticism import DiagnoseSettings
-from granbayes.errors import InputError
+from granbayes._cli import EXIT_OK, main
+from granbayes._criticism import DiagnoseSettings
+from granbayes._errors import InputError
+from granbayes._fitting import _variable_attrs
+from granbayes._priors import NOISE_PARAMETERS, Prior, default_priors, load_priors, priors_toml
 from granbayes.figures import param_label
-from granbayes.fitting import _variable_attrs
 from granbayes.forces import TERMS, DefaultPrior, ForceLaw, ForceTerm, Parameter
-from granbayes.priors import NOISE_PARAMETERS, Prior, default_priors, load_priors, priors_toml
 from granbayes.report import _prior_posterior_labels
 from granbayes.testing import energy_test_box, simulate_height_scipy
 
@@ -76,7 +76,7 @@ def registered(monkeypatch: pytest.MonkeyPatch) -> Parameter:
 def test_every_parameter_has_bounds_prior_reason_label_and_unit(param: Parameter) -> None:
     """Bounds, realistic range, default prior and its reason, label and unit are all there.
 
-    The default prior is a valid :class:`~granbayes.priors.Prior` in the parameter's unit,
+    The default prior is a valid :class:`~granbayes._priors.Prior` in the parameter's unit,
     its support and the realistic range lie inside the hard bounds, and the label names
     the unit (with Unicode superscripts for a power, e.g. ``N/m^2`` -> ``N/m²``).
     """

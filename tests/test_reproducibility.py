@@ -26,10 +26,10 @@ import numpy as np
 from arviz_stats.base import array_stats
 
 from granbayes import load_experiment, load_jumps
+from granbayes._fitting import FitSettings, fit
 from granbayes._provenance import environment, reproducibility_key
-from granbayes.fitting import FitSettings, fit
-from granbayes.sampler import SamplerSettings
-from granbayes.synthetic import REFERENCE_DATA
+from granbayes._sampler import SamplerSettings
+from granbayes._synthetic import REFERENCE_DATA
 
 RECORD = Path(__file__).resolve().parent / "data" / "reproducibility-fit.json"
 SEED = 20261124

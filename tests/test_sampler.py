@@ -1,4 +1,4 @@
-"""Tests of the ensemble driver (``granbayes.sampler.run_ensembles``) on analytic targets.
+"""Tests of the ensemble driver (``granbayes._sampler.run_ensembles``) on analytic targets.
 
 The main target is a correlated 2-D Gaussian written in plain numpy, so the true posterior
 moments are known exactly and a run costs about a millisecond per step (HDF5
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from granbayes.sampler import (
+from granbayes._sampler import (
     CheckpointMismatchError,
     SamplerRun,
     SamplerSettings,
@@ -463,7 +463,7 @@ def test_ensembles_are_stepped_in_one_batch_with_their_own_chains() -> None:
     """
     import emcee
 
-    from granbayes.sampler import _moves, _spawn
+    from granbayes._sampler import _moves, _spawn
 
     sizes: list[int] = []
 
@@ -518,7 +518,7 @@ def test_runs_side_by_side_are_the_runs_alone_with_one_call_per_round() -> None:
     of requests is one call of ``evaluate`` with both runs' positions, and each run stops
     by its own rule (here the Gaussian converges first and the banana goes on).
     """
-    from granbayes.sampler import RunSpec, run_side_by_side
+    from granbayes._sampler import RunSpec, run_side_by_side
 
     rng = np.random.default_rng(3)
     banana_start = [0.1 * rng.standard_normal((8, 3)) for _ in range(4)]
@@ -562,7 +562,7 @@ def test_autocorrelation_time_of_a_stuck_coordinate_is_nan_without_a_warning(
     """A coordinate no walker has moved in has no autocorrelation time (NaN: "not yet
     known" for the stopping rule), and computing it does not warn (the suite errors on
     warnings); the moving coordinate keeps its finite time."""
-    from granbayes.sampler import _tau
+    from granbayes._sampler import _tau
 
     chain = np.zeros((100, 8, 2))
     chain[:, :, 1] = rng.standard_normal((100, 8))

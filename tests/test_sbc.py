@@ -1,4 +1,4 @@
-"""Tests of simulation-based calibration (``granbayes.sbc``, ``granbayes sbc``) on Dask.
+"""Tests of simulation-based calibration (``granbayes._sbc``, ``granbayes sbc``) on Dask.
 
 All data here are SYNTHETIC. The design is tiny (2 volume fractions x 2 commands x 1
 trial) and the fits are capped (8 walkers, 100 steps, ranks among 19 draws), so one
@@ -25,10 +25,11 @@ import pytest
 from distributed import Client
 
 from granbayes import load_experiment, load_jumps
-from granbayes.cli import EXIT_INPUT, EXIT_OK, main
-from granbayes.fitting import FitSettings
-from granbayes.sampler import SamplerSettings
-from granbayes.sbc import run_sbc
+from granbayes._cli import EXIT_INPUT, EXIT_OK, main
+from granbayes._fitting import FitSettings
+from granbayes._sampler import SamplerSettings
+from granbayes._sbc import run_sbc
+from granbayes.campaign import ClusterSettings
 from granbayes.stats import summarize_ranks
 
 BIN = Path(sys.executable).parent
@@ -268,7 +269,7 @@ def test_same_seed_same_ranks_with_one_or_two_workers_and_foreign_resume_refused
             n_replicates=2,
             seed=9,
             n_rank_draws=19,
-            n_workers=workers,
+            cluster=ClusterSettings(n_workers=workers),
             progress=False,
         )
         assert res.campaign.n_failed == 0

@@ -16,10 +16,10 @@ import pytest
 
 import granbayes
 import granbayes.testing
+from granbayes._experiment import Experiment
+from granbayes._simulator import SolverSettings, Status
 from granbayes.commands import COMMAND_NAMES
-from granbayes.experiment import Experiment
 from granbayes.forces import PARAMETER_NAMES, PARAMETERS, typical_ranges
-from granbayes.simulator import SolverSettings, Status
 from granbayes.testing import simulate_height_scipy
 
 #: Required agreement of ``granbayes.simulate`` (default settings) with solve_ivp [mm].

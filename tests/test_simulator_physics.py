@@ -1,4 +1,4 @@
-"""Physics tests of the jump simulator (``granbayes.simulator`` and its compiled integrator).
+"""Physics tests of the jump simulator (``granbayes._simulator`` and its compiled integrator).
 
 What is checked, against ``physics-model.md``:
 
@@ -53,9 +53,9 @@ from granbayes import (
     simulate_table,
     simulate_trajectory,
 )
+from granbayes._priors import default_priors
+from granbayes._simulator import build_rows
 from granbayes.forces import PARAMETER_NAMES, TERMS, typical_ranges
-from granbayes.priors import default_priors
-from granbayes.simulator import build_rows
 from granbayes.testing import energy_test_box, simulate_height_scipy
 
 G = 9.81

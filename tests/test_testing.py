@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from granbayes import Experiment, stats
+from granbayes._fitting import FitSettings, fit
+from granbayes._synthetic import make_jumps
 from granbayes.commands import COMMAND_NAMES
-from granbayes.fitting import FitSettings, fit
 from granbayes.report import write_fit_report
-from granbayes.synthetic import make_jumps
 from granbayes.testing import QUICK_SAMPLER, fake_fit, simulate_height_scipy, synthetic_jumps
 
 COMMANDS = ("single", "preload", "stutter")

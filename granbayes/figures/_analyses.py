@@ -25,12 +25,12 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from numpy.typing import ArrayLike
 
+from .._experiment import Experiment
 from ..commands import COMMAND_NAMES
-from ..experiment import Experiment
 
 if TYPE_CHECKING:
-    from ..maps import MisfitMap
-    from ..optimal import OptimumSearch
+    from ..analysis.maps import MisfitMap
+    from ..analysis.optimal import OptimumSearch
 
 
 # Okabe-Ito colours: distinguishable with colour-vision deficiencies and in greyscale.
@@ -167,7 +167,7 @@ def plot_heights_vs_phi(
     return fig
 
 
-# -- misfit maps (granbayes.maps) ---------------------------------------------------------
+# -- misfit maps (granbayes.analysis.maps) ---------------------------------------------------------
 def _cd_limits(m: MisfitMap) -> tuple[float, float]:
     """c_d axis limits of the pcolormesh cells (half a step beyond the grid) [kg/m]."""
     half = 0.5 * (m.cd_kg_per_m[1] - m.cd_kg_per_m[0]) if m.cd_kg_per_m.size > 1 else 0.5
@@ -186,7 +186,7 @@ def _misfit_norm(m: MisfitMap) -> LogNorm:
 
 def _shade_valley(ax: Axes, m: MisfitMap, command: str) -> None:
     """Acceptable region (hatched) and valley line of ``command`` on ``ax``."""
-    from ..maps import valley_line
+    from ..analysis.maps import valley_line
 
     ev = m.observed
     mask = ev.acceptable[command].astype(float)
@@ -234,7 +234,7 @@ def plot_misfit_maps(m: MisfitMap, phi_c: float, title: str) -> Figure:
 
     Parameters
     ----------
-    m : granbayes.maps.MisfitMap
+    m : granbayes.analysis.maps.MisfitMap
     phi_c : float
         Critical packing [-].
     title : str
@@ -243,7 +243,7 @@ def plot_misfit_maps(m: MisfitMap, phi_c: float, title: str) -> Figure:
     -------
     matplotlib.figure.Figure
     """
-    from ..maps import TOLERANCE_SE, valley_line
+    from ..analysis.maps import TOLERANCE_SE, valley_line
     from ..stats import interval
 
     fig = Figure(figsize=(15.5, 5.2), layout="constrained")
@@ -353,7 +353,7 @@ def plot_valleys(maps: Sequence[MisfitMap], phi_c: float, title: str) -> Figure:
 
     Parameters
     ----------
-    maps : sequence of granbayes.maps.MisfitMap
+    maps : sequence of granbayes.analysis.maps.MisfitMap
         One per volume fraction, ascending, all of the same command pair.
     phi_c : float
         Critical packing [-].
@@ -363,7 +363,7 @@ def plot_valleys(maps: Sequence[MisfitMap], phi_c: float, title: str) -> Figure:
     -------
     matplotlib.figure.Figure
     """
-    from ..maps import TOLERANCE_SE
+    from ..analysis.maps import TOLERANCE_SE
     from ..stats import interval
 
     n = len(maps)
@@ -431,7 +431,7 @@ def plot_valleys(maps: Sequence[MisfitMap], phi_c: float, title: str) -> Figure:
     return fig
 
 
-# -- optimal jumping (granbayes.optimal) -------------------------------------------------
+# -- optimal jumping (granbayes.analysis.optimal) -------------------------------------------------
 def plot_optimum_vs_frequency(
     results: Sequence[OptimumSearch], phi_c: float, f0_hz: float, title: str
 ) -> Figure:
@@ -530,15 +530,15 @@ def plot_delay_curves(
 
     Parameters
     ----------
-    results : sequence of granbayes.optimal.OptimumSearch
+    results : sequence of granbayes.analysis.optimal.OptimumSearch
         One per volume fraction, ascending (the first is the loosest bed).
     measured : pandas.DataFrame
-        :func:`granbayes.optimal.measured_settings` (their delay curves are drawn).
+        :func:`granbayes.analysis.optimal.measured_settings` (their delay curves are drawn).
     phi_c : float
         Critical packing [-].
     title : str
     """
-    from ..optimal import PUBLISHED_DELAY_MS, delay_curve, delay_settings, describe_setting
+    from ..analysis.optimal import PUBLISHED_DELAY_MS, delay_curve, delay_settings, describe_setting
 
     fig = Figure(figsize=(12.5, 4.8), layout="constrained")
     ax_l, ax_r = fig.subplots(1, 2)
@@ -662,7 +662,7 @@ def plot_optimum_vs_phi(results: Sequence[OptimumSearch], phi_c: float, title: s
     return fig
 
 
-# -- added-mass impulse (granbayes.mechanics) --------------------------------------------
+# -- added-mass impulse (granbayes.analysis.mechanics) --------------------------------------------
 def _marker_handles(items: Sequence[tuple[str, str, str]]) -> list[Line2D]:
     """Legend entries (label, marker, face colour) with black edges."""
     return [
@@ -775,7 +775,7 @@ def plot_added_mass(
     -------
     matplotlib.figure.Figure
     """
-    from ..mechanics import added_mass_impulse, advancing_episodes, flux_force_N
+    from ..analysis.mechanics import added_mass_impulse, advancing_episodes, flux_force_N
 
     imp = added_mass_impulse(data)
     t_ms = data["t_s"].to_numpy(float) * 1e3

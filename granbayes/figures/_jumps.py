@@ -29,7 +29,7 @@ from matplotlib.figure import Figure, SubFigure
 from matplotlib.patches import Patch
 from numpy.typing import ArrayLike
 
-from ..simulator import Status, Trajectory
+from .._simulator import Status, Trajectory
 
 if TYPE_CHECKING:
     pass

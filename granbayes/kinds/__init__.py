@@ -6,7 +6,7 @@ carries, in its :class:`Kind` entry of :data:`KINDS`:
 * its file in an experiment folder and its loader with validation (bad input named by
   file, row and column);
 * its unit of leave-one-out (a jump, a tracked jump, an intrusion test);
-* its likelihood block (:class:`granbayes.likelihood.Block`): what it asks the simulator
+* its likelihood block (:class:`granbayes._likelihood.Block`): what it asks the simulator
   for, its own coordinates and its observation model;
 * its part of a fit's DataTree (observed data and their coordinates, read back);
 * its residual cells (:mod:`granbayes.stats`) and its figures (:mod:`granbayes.figures`).
@@ -24,9 +24,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from .._experiment import Experiment
+from .._likelihood import Block, ObservationSettings
 from .._measurements import Measurements
-from ..experiment import Experiment
-from ..likelihood import Block, ObservationSettings
 from ._heights import HEIGHTS
 from ._intrusions import INTRUSIONS
 from ._kind import Kind
@@ -124,7 +124,7 @@ def load_measurements(
         For a bad file (naming file, row and column), a requested kind whose file is
         missing, or a folder with no measurement file at all.
     """
-    from ..errors import InputError
+    from .._errors import InputError
 
     folder = Path(folder)
     names = (

@@ -9,10 +9,10 @@ import pandas as pd
 import xarray as xr
 
 from .. import figures, stats
+from .._experiment import Experiment
+from .._likelihood import HeightBlock, Observations, ObservationSettings
 from .._measurements import load_jumps
 from ..commands import SETTINGS
-from ..experiment import Experiment
-from ..likelihood import HeightBlock, Observations, ObservationSettings
 from ._kind import Kind
 
 __all__ = ["HEIGHTS"]

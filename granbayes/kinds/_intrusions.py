@@ -9,9 +9,9 @@ import pandas as pd
 import xarray as xr
 
 from .. import figures, stats
+from .._experiment import Experiment
+from .._likelihood import IntrusionBlock, ObservationSettings
 from .._measurements import load_intrusions
-from ..experiment import Experiment
-from ..likelihood import IntrusionBlock, ObservationSettings
 from ._kind import Kind
 
 __all__ = ["INTRUSIONS"]

@@ -9,8 +9,8 @@ from pathlib import Path
 import pandas as pd
 import xarray as xr
 
-from ..experiment import Experiment
-from ..likelihood import Block, ObservationSettings
+from .._experiment import Experiment
+from .._likelihood import Block, ObservationSettings
 
 __all__ = ["Kind"]
 
@@ -35,7 +35,7 @@ class Kind:
         ``load(path, experiment) -> DataFrame``: read and validate the file.
     block : callable
         ``block(table, settings) -> Block``: its likelihood block for the measurements of
-        one model (:class:`granbayes.likelihood.ObservationSettings`).
+        one model (:class:`granbayes._likelihood.ObservationSettings`).
     to_observed : callable
         ``to_observed(table) -> xarray.Dataset``: its observed data for a fit's DataTree
         (data variables and their coordinates, on its own dimensions).

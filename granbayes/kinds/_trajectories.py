@@ -9,10 +9,10 @@ import pandas as pd
 import xarray as xr
 
 from .. import figures, stats
+from .._experiment import Experiment
+from .._likelihood import ObservationSettings, TrajectoryBlock
 from .._measurements import load_trajectories
 from ..commands import SETTINGS, CommandSettings, build_command
-from ..experiment import Experiment
-from ..likelihood import ObservationSettings, TrajectoryBlock
 from ._kind import Kind
 
 __all__ = ["PHASES", "TRAJECTORIES", "frame_phases"]

@@ -119,7 +119,7 @@ def by_ensemble(dt: xr.DataTree, group: str = "posterior") -> xr.Dataset:
     The walkers of an ensemble move together (each proposal uses the others), so they are
     not independent chains; the ensembles, started apart, are. Chain ``e`` holds ensemble
     ``e``'s kept draws in step order, its walkers inside each step (the chains of the
-    stopping rule's R-hat, :mod:`granbayes.sampler`). Where the runs of a fit kept
+    stopping rule's R-hat, :mod:`granbayes._sampler`). Where the runs of a fit kept
     different numbers of ensembles (a stuck ensemble dropped), the walkers stay the chains.
 
     Parameters

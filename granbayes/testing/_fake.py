@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from ..experiment import Experiment
+from .._experiment import Experiment
 
 __all__ = ["fake_fit"]
 
@@ -63,11 +63,11 @@ def fake_fit(
     import dataclasses
 
     from .. import stats
+    from .._datatree import build_datatree
+    from .._fitting import FitSettings, _variable_attrs, data_hash
+    from .._priors import default_priors
     from .._provenance import environment
-    from ..datatree import build_datatree
-    from ..fitting import FitSettings, _variable_attrs, data_hash
     from ..forces import TERMS, terms_of
-    from ..priors import default_priors
 
     rng = np.random.default_rng(seed)
     terms = terms_of(terms)

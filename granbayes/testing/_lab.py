@@ -26,7 +26,7 @@ freshly prepared bed; a filmed jump's height and frames share it) and one per in
 test. Every table carries a ``bed`` column naming the bed preparation a row comes from.
 
 Every row carries ``source = "synthetic: <label> seed=<seed>"`` (as
-:mod:`granbayes.synthetic` writes it), the tables also hold the noise-free values
+:mod:`granbayes._synthetic` writes it), the tables also hold the noise-free values
 (``true_*`` columns, dropped by :func:`write_lab_experiment`), and the truth (robot, beds,
 law, effects) stays in the returned :class:`LabData`.
 
@@ -58,8 +58,8 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
+from .._experiment import Experiment, Robot
 from ..commands import build_command
-from ..experiment import Experiment, Robot
 from ._effects import Effect, resolve_effects
 from ._oracle import intrusion_force_scipy, simulate_height_scipy, simulate_trajectory_scipy
 
@@ -399,7 +399,7 @@ def synthetic_lab_data(
     true_exp, uncertainty = _true_robot(nominal, design, rng_robot)
     source = f"synthetic: {label} seed={seed}"
 
-    # the jumps, in the order of granbayes.synthetic.make_jumps: phi, freq, command, trial
+    # the jumps, in the order of granbayes._synthetic.make_jumps: phi, freq, command, trial
     cells = [
         (phi, freq, command)
         for phi in design.phis

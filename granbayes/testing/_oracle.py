@@ -18,9 +18,9 @@ the oracle before effects existed (bit for bit).
 
 It shares nothing with the compiled integrator (``granbayes._kernel``) except the command
 waveforms (:func:`granbayes.commands.build_command`), the robot/settings containers
-(:mod:`granbayes.experiment`) and the parameter bounds and "off" values of the force-term
+(:mod:`granbayes._experiment`) and the parameter bounds and "off" values of the force-term
 registry (:mod:`granbayes.forces`); its only numerical dependency is scipy. Never import
-the kernel, the simulator's numerics, the likelihood or :mod:`granbayes.synthetic` here.
+the kernel, the simulator's numerics, the likelihood or :mod:`granbayes._synthetic` here.
 
 How the non-smooth model is integrated
 --------------------------------------
@@ -114,8 +114,8 @@ import pandas as pd
 from scipy.integrate import OdeSolution, solve_ivp
 from scipy.optimize import OptimizeResult, brentq
 
+from .._experiment import Experiment
 from ..commands import CommandProgram, build_command
-from ..experiment import Experiment
 from ..forces import PARAMETERS
 from ._effects import Effect, JanssenSaturation, _EffectSet, resolve_effects
 

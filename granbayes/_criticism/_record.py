@@ -76,7 +76,7 @@ class CellResult:
     def from_table(
         cls, residuals: pd.DataFrame, z_threshold: float | Mapping[str, float]
     ) -> tuple[CellResult, ...]:
-        """The cells of a residual table (:func:`granbayes.criticism.cells_of`).
+        """The cells of a residual table (:func:`granbayes._criticism.cells_of`).
 
         Parameters
         ----------

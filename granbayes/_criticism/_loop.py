@@ -16,12 +16,12 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
+from .._experiment import Experiment
+from .._fitting import FitResult
+from .._priors import Prior
 from .._provenance import environment
-from ..experiment import Experiment
-from ..fitting import FitResult
+from .._sampler import ProgressInfo
 from ..forces import TERMS, terms_of
-from ..priors import Prior
-from ..sampler import ProgressInfo
 from ._bank import FitBank, Pointwise
 from ._cells import cells_of, kind_thresholds, misfit_mask
 from ._record import (
@@ -241,7 +241,7 @@ def diagnose(
     log : callable
         Progress messages (``print`` by default; pass ``lambda *a: None`` to silence).
     progress : callable, optional
-        ``progress(label, info)`` (:class:`granbayes.sampler.ProgressInfo`) after every
+        ``progress(label, info)`` (:class:`granbayes._sampler.ProgressInfo`) after every
         sampler chunk of every fit, labelled by law and run (one bar per fit run).
 
     Returns

@@ -6,7 +6,7 @@ correlation times: never force parameters, which belong to the law), what it ask
 compiled simulator for (:class:`JumpRequest`), and its observation model: the pointwise
 log-likelihood of its units (the unit of leave-one-out: a jump, a tracked jump, an
 intrusion test), posterior-predictive replicates, and the values of its coordinates per
-volume fraction for the posterior. The model (:class:`granbayes.likelihood.JumpModel`)
+volume fraction for the posterior. The model (:class:`granbayes._likelihood.JumpModel`)
 owns the force law and knows blocks only through this interface; the registry of kinds
 (:mod:`granbayes.kinds`) says which block reads which file.
 """
@@ -21,8 +21,8 @@ from typing import ClassVar
 import numpy as np
 import pandas as pd
 
+from .._priors import Prior
 from ..commands import CommandProgram
-from ..priors import Prior
 from ._beds import BedPhi
 
 __all__ = ["Block", "Coordinate", "JumpRequest", "Law", "ObservationSettings", "Simulated"]
@@ -38,7 +38,7 @@ class Law:
         ``phis``, shape ``(n, len(phis))``.
     rows : callable
         ``rows(phis)``: the integrator rows (robot, phi and every force parameter,
-        ``granbayes.simulator.build_rows`` layout) of every (walker, phi) pair,
+        ``granbayes._simulator.build_rows`` layout) of every (walker, phi) pair,
         walker-major, shape ``(n * len(phis), ROW_SIZE)``.
     """
 
@@ -66,7 +66,7 @@ class ObservationSettings:
     max_offset_frames : float
         The largest offset of a camera's clock from the command's [frames], marginalised
         (tracked jumps) with a uniform prior over +/- this many frame intervals (rounded
-        up, plus half a grid step; :mod:`granbayes.likelihood._trajectories`). "A few
+        up, plus half a grid step; :mod:`granbayes._likelihood._trajectories`). "A few
         frames" (physics-model.md section 5b): 5 covers a clock offset of standard
         deviation 2 frames in 98.8% of jumps.
     offset_step_ms : float

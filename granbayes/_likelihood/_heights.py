@@ -3,7 +3,7 @@
 Noise: Gaussian (default) or Student-t (``noise="student_t"``, ``nu`` degrees of freedom,
 fixed; a heavy-tailed option robust to outlying trials), with the scatter ``sigma_mm``
 fitted per volume fraction (default) or globally. The unit of leave-one-out is one jump.
-With ``bed`` (a :class:`~granbayes.likelihood._beds.BedPhi` with ``phi_sd > 0``) each jump's
+With ``bed`` (a :class:`~granbayes._likelihood._beds.BedPhi` with ``phi_sd > 0``) each jump's
 bed has a latent volume fraction, integrated out by quadrature: every configuration is
 simulated at the quadrature's nodes about its measured phi.
 """
@@ -20,8 +20,8 @@ import numpy as np
 import pandas as pd
 from scipy.special import gammaln
 
+from .._priors import Prior, default_priors
 from ..commands import SETTINGS, CommandProgram, CommandSettings, build_command
-from ..priors import Prior, default_priors
 from ._beds import BedPhi
 from ._blocks import Block, Coordinate, JumpRequest, Law, Simulated
 
@@ -362,7 +362,7 @@ class HeightBlock(Block):
         -------
         ndarray, shape (n, n_jumps)
             ``-inf`` for a walker any of whose simulations failed. With a latent bed phi,
-            each jump's density integrated over it (:mod:`granbayes.likelihood._beds`).
+            each jump's density integrated over it (:mod:`granbayes._likelihood._beds`).
         """
         if self.bed.size == 1:
             mean = sim.heights_mm[:, self.obs.config_of_obs]

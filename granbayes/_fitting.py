@@ -26,7 +26,7 @@ ndim`` and about twice the steps).
 A bed's volume fraction known only to its measurement (``[bed] phi_sd``): with
 ``bed_phi="integrate"`` (default) and ``phi_mode="quadratic"``, each jump's and each
 intrusion test's bed has a latent true phi, integrated out of that unit's likelihood
-(:mod:`granbayes.likelihood._beds` says how and why). Why only there: the smooth laws are
+(:mod:`granbayes._likelihood._beds` says how and why). Why only there: the smooth laws are
 defined beside the measured volume fractions; per-phi coefficients are not, and a local
 slope per coefficient and volume fraction would be identified only by the extra scatter
 the beds add to that volume fraction's jumps (in practice by its prior, i.e. by the
@@ -60,17 +60,11 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from . import datatree as gdt
+from . import _datatree as gdt
 from . import stats
 from ._deprecated import alias_getattr
-from ._measurements import Measurements
-from ._provenance import environment
-from ._search import drive, nelder_mead
-from .commands import COMMAND_NAMES
-from .experiment import Experiment
-from .forces import PARAMETERS, terms_of
-from .kinds import KINDS, blocks_for
-from .likelihood import (
+from ._experiment import Experiment
+from ._likelihood import (
     CALIBRATED_KEYS,
     BedPhi,
     HeightBlock,
@@ -82,9 +76,15 @@ from .likelihood import (
     SigmaMode,
     evaluate_models,
 )
-from .priors import Prior, calibration_priors, default_priors
-from .sampler import ProgressInfo, RunSpec, SamplerRun, SamplerSettings, run_side_by_side
-from .simulator import SolverSettings
+from ._measurements import Measurements
+from ._priors import Prior, calibration_priors, default_priors
+from ._provenance import environment
+from ._sampler import ProgressInfo, RunSpec, SamplerRun, SamplerSettings, run_side_by_side
+from ._search import drive, nelder_mead
+from ._simulator import SolverSettings
+from .commands import COMMAND_NAMES
+from .forces import PARAMETERS, terms_of
+from .kinds import KINDS, blocks_for
 
 #: The "off" value of every force parameter (its term absent).
 PARAMETER_ABSENT: dict[str, float | None] = {p.name: p.absent for p in PARAMETERS}
@@ -144,7 +144,7 @@ class FitSettings:
         ``"integrate"``: with ``[bed] phi_sd > 0`` and ``phi_mode="quadratic"``, each
         jump's and each intrusion test's bed has a latent volume fraction
         ``Normal(measured, phi_sd)``, integrated out by Gauss-Hermite quadrature
-        (:class:`granbayes.likelihood.BedPhi`; ``phi_nodes`` simulations per
+        (:class:`granbayes._likelihood.BedPhi`; ``phi_nodes`` simulations per
         configuration); tracked jumps take the measured phi. In ``per_phi`` mode a
         volume fraction's coefficients are those of the beds prepared at it (a law
         defined only at the measured value cannot be evaluated beside it), and the fit
@@ -287,7 +287,7 @@ class FitResult:
 
     @property
     def converged(self) -> bool:
-        """Whether every run met the stopping rule (``granbayes.sampler``)."""
+        """Whether every run met the stopping rule (``granbayes._sampler``)."""
         return all(p.run.converged for p in self.parts)
 
     def diagnostics(self) -> pd.DataFrame:
@@ -299,7 +299,7 @@ class FitResult:
 
         ``log mean_s p(y_i | theta_s)`` over every posterior draw of the run that fitted
         the unit's volume fraction (the observation model of
-        :meth:`granbayes.likelihood.JumpModel.log_predictive_density`): held-out units of
+        :meth:`granbayes._likelihood.JumpModel.log_predictive_density`): held-out units of
         a cross-validation, or a new experiment at the fitted volume fractions.
 
         Parameters
@@ -699,7 +699,7 @@ def fit(
     seed : int
         Master seed; recorded in the result.
     priors : mapping of str to Prior, optional
-        Priors (default: :func:`granbayes.priors.default_priors`).
+        Priors (default: :func:`granbayes._priors.default_priors`).
     backend : str or Path, optional
         Folder of HDF5 checkpoints (one file per run, ``<label>.h5``).
     resume : bool
@@ -1419,7 +1419,7 @@ def _assemble(
     """The :class:`FitResult` of the runs.
 
     Their draws, prior draws and attributes in one DataTree
-    (:func:`granbayes.datatree.build_datatree`).
+    (:func:`granbayes._datatree.build_datatree`).
     """
     for part in parts:
         part.data = data.select(part.units)

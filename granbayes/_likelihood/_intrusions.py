@@ -2,12 +2,12 @@
 
 Each test drives the foot alone at a constant speed into a fresh bed
 (physics-model.md section 5b); the model's force at every sample's depth is closed-form
-(:func:`granbayes.simulator.intrusion_force_rows`, no ODE), so the block asks the jump
+(:func:`granbayes._simulator.intrusion_force_rows`, no ODE), so the block asks the jump
 simulator for nothing. Observation model: the measured force is the model's plus
 independent Gaussian noise of a fitted scale ``force_sd_N`` [N] per volume fraction (one
 load cell, read at depths much farther apart than the cell's response: white noise). The
 unit of leave-one-out is a whole test (its samples are one curve, not exchangeable).
-With ``bed`` (a :class:`~granbayes.likelihood._beds.BedPhi` with ``phi_sd > 0``) each test's
+With ``bed`` (a :class:`~granbayes._likelihood._beds.BedPhi` with ``phi_sd > 0``) each test's
 bed has a latent volume fraction, shared by its samples and integrated out by quadrature
 per test.
 """
@@ -21,8 +21,8 @@ from typing import ClassVar
 import numpy as np
 import pandas as pd
 
-from ..priors import Prior
-from ..simulator import ROW_FIELDS, intrusion_force_rows
+from .._priors import Prior
+from .._simulator import ROW_FIELDS, intrusion_force_rows
 from ._beds import BedPhi
 from ._blocks import Block, Coordinate, Law, Simulated, coordinate_values, noise_coordinates
 
@@ -207,7 +207,7 @@ class IntrusionBlock(Block):
         -------
         ndarray, shape (n, n_tests)
             ``-inf`` for a test whose force could not be computed. With a latent bed phi,
-            each test's density integrated over it (:mod:`granbayes.likelihood._beds`).
+            each test's density integrated over it (:mod:`granbayes._likelihood._beds`).
         """
         if self.bed.size == 1:
             force = self.force_N(law)

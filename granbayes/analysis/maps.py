@@ -42,7 +42,7 @@ Examples
 --------
 >>> import numpy as np
 >>> import granbayes as gb
->>> from granbayes.maps import GridSpec, misfit_map
+>>> from granbayes.analysis.maps import GridSpec, misfit_map
 >>> exp = gb.load_experiment("my-lab")  # doctest: +SKIP
 >>> jumps = gb.load_jumps("my-lab", exp)  # doctest: +SKIP
 >>> grid = GridSpec(40, 21, 8, 300.0, 30000.0, 100.0)
@@ -62,25 +62,30 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .commands import COMMANDS as COMMAND_REGISTRY
-from .experiment import Experiment
-from .simulator import simulate
-from .stats import interval
+from .._experiment import Experiment
+from .._simulator import simulate
+from ..commands import COMMANDS as COMMAND_REGISTRY
+from ..stats import interval
 
 __all__ = [
+    "CD_MAX_KG_PER_M",
     "COMMANDS",
+    "K_RANGE_N_PER_M",
+    "TOLERANCE_SE",
+    "argmin_2d",
     "Cell",
-    "Evaluation",
-    "GridSpec",
-    "MisfitMap",
     "cell_table",
     "cells_at",
     "curve_crossings",
     "evaluate",
+    "Evaluation",
     "grid_table",
+    "GridSpec",
     "misfit_map",
+    "MisfitMap",
     "refine_k",
     "refine_log_k",
+    "short",
     "valley_line",
     "valley_table",
 ]

@@ -40,8 +40,8 @@ from numpy.typing import ArrayLike
 
 from . import _kernel
 from ._deprecated import alias_getattr
+from ._experiment import Experiment, Robot
 from .commands import CommandProgram, CommandSettings, build_command
-from .experiment import Experiment, Robot
 from .forces import PARAMETER_NAMES, PARAMETERS, parameter_term
 
 __all__ = [
@@ -920,8 +920,8 @@ def simulate_frames_rows(
     --------
     >>> import numpy as np
     >>> from granbayes import build_command, simulate_frames_rows
-    >>> from granbayes.experiment import Robot
-    >>> from granbayes.simulator import build_rows
+    >>> from granbayes._experiment import Robot
+    >>> from granbayes._simulator import build_rows
     >>> rows = build_rows(Robot(), [0.6, 0.62], {"k": 3000.0})
     >>> res = simulate_frames_rows(rows, [build_command("single")], None, np.arange(5) * 0.01)
     >>> res.frames.shape  # (jumps, frames, (x_foot_mm, x_rod_mm, v_foot_mm_s, v_rod_mm_s))

@@ -28,7 +28,7 @@ Exit codes
     The simulation ran but at least one jump did not finish (status ``failed:...``, height
     NaN). Everything requested is still printed and written.
 4
-    ``fit`` or ``diagnose``: a sampler run did not converge (``granbayes.sampler``: the
+    ``fit`` or ``diagnose``: a sampler run did not converge (``granbayes._sampler``: the
     autocorrelation, cross-ensemble R-hat and ESS criteria). Everything is written, with
     the warnings; ``--allow-unconverged`` turns this into exit code 0.
 5
@@ -66,10 +66,7 @@ import numpy as np
 import pandas as pd
 
 from . import __version__
-from ._files import atomic_path, staged_folder
-from ._measurements import _load_batch
-from .commands import COMMAND_NAMES
-from .demo import (
+from ._demo import (
     DEMO_PARAMS,
     DEMO_PHI,
     HARD_GROUND_FREQS_HZ,
@@ -77,11 +74,14 @@ from .demo import (
     law_text,
     run_demo,
 )
-from .errors import InputError
-from .experiment import Experiment, load_experiment
+from ._errors import InputError
+from ._experiment import Experiment, load_experiment
+from ._files import atomic_path, staged_folder
+from ._measurements import _load_batch
+from ._simulator import Status, simulate, simulate_table, simulate_trajectory
+from ._synthetic import REFERENCE_DATA
+from .commands import COMMAND_NAMES
 from .forces import PARAMETER_NAMES, PARAMETERS, TERMS, parameter_term
-from .simulator import Status, simulate, simulate_table, simulate_trajectory
-from .synthetic import REFERENCE_DATA
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -412,7 +412,7 @@ def _simulate_one(args: argparse.Namespace) -> int:
         if args.trajectory is not None:
             _write_csv(traj.data, args.trajectory)
         if args.plot is not None:
-            from .plots import plot_trajectory
+            from .figures import plot_trajectory
 
             shown = f"height {height:.1f} mm" if math.isfinite(height) else "no height"
             title = (
@@ -673,8 +673,8 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _fit_config(args: argparse.Namespace):
-    from .fitting import FitSettings
-    from .sampler import SamplerSettings
+    from ._fitting import FitSettings
+    from ._sampler import SamplerSettings
 
     _check_inference_arguments(args)
     terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
@@ -699,8 +699,8 @@ def _fit_config(args: argparse.Namespace):
 
 def run_fit(args: argparse.Namespace) -> int:
     """``granbayes fit``: validate everything, sample, write the report atomically."""
-    from .fitting import compare_commands, fit
-    from .priors import load_priors
+    from ._fitting import compare_commands, fit
+    from ._priors import load_priors
     from .report import load_truth, write_fit_report
 
     config = _fit_config(args)
@@ -772,7 +772,7 @@ class ProgressBars:
             bar.close()
 
     def __call__(self, label: str, info) -> None:
-        """Update the bar of run ``label`` with a ``granbayes.sampler.ProgressInfo``."""
+        """Update the bar of run ``label`` with a ``granbayes._sampler.ProgressInfo``."""
         if not self.enabled:
             return
         from tqdm import tqdm
@@ -822,10 +822,10 @@ def run_diagnose(args: argparse.Namespace) -> int:
     """``granbayes diagnose``: the model-criticism loop, written atomically to OUT."""
     import dataclasses as dc
 
-    from .criticism import DiagnoseSettings, diagnose
+    from ._criticism import DiagnoseSettings, diagnose
+    from ._priors import load_priors
     from .design import save_tie_laws
     from .forces import terms_of
-    from .priors import load_priors
     from .report import write_diagnosis_report
 
     def terms(text: str, option: str) -> tuple[str, ...]:
@@ -941,8 +941,8 @@ def _add_design_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_design(args: argparse.Namespace) -> int:
+    from ._fitting import data_hash
     from .design import candidate_settings, design_from_diagnosis
-    from .fitting import data_hash
 
     if args.max_jumps < 1:
         raise UsageError(f"--max-jumps {args.max_jumps}: must be >= 1")
@@ -1102,11 +1102,11 @@ def _add_sbc_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_sbc_command(args: argparse.Namespace) -> int:
     """``granbayes sbc``: simulation-based calibration of fit as a Dask campaign."""
+    from ._fitting import FitSettings
     from ._measurements import load_jumps
+    from ._priors import load_priors
+    from ._sampler import SamplerSettings
     from .campaign import CampaignError
-    from .fitting import FitSettings
-    from .priors import load_priors
-    from .sampler import SamplerSettings
 
     _check_inference_arguments(args)
     terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
@@ -1157,8 +1157,15 @@ def run_sbc_command(args: argparse.Namespace) -> int:
 
 
 def _run_sbc_campaign(args, experiment, design, config, priors, log):
-    from .sbc import run_sbc
+    from ._sbc import run_sbc
+    from .campaign import ClusterSettings
 
+    cluster = ClusterSettings(
+        scheduler_address=args.scheduler,
+        n_workers=args.workers,
+        numba_threads=args.threads,
+        connect_timeout_s=args.connect_timeout,
+    )
     return run_sbc(
         experiment,
         design,
@@ -1168,12 +1175,9 @@ def _run_sbc_campaign(args, experiment, design, config, priors, log):
         seed=args.seed,
         priors=priors,
         n_rank_draws=args.rank_draws,
-        scheduler_address=args.scheduler,
-        n_workers=args.workers,
-        numba_threads=args.threads,
+        cluster=cluster,
         resume=args.resume,
         progress=not args.quiet,
-        connect_timeout_s=args.connect_timeout,
         data_source=str(args.data),
         log=log,
     )
@@ -1230,8 +1234,8 @@ def _add_predict_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_predict(args: argparse.Namespace) -> int:
-    from .prediction import predict
-    from .saved import load_fit
+    from ._prediction import predict
+    from ._saved import load_fit
 
     commands = [_check_command(c.strip()) for c in args.command.split(",") if c.strip()]
     phis = [_check_phi(p.strip()) for p in args.phi.split(",") if p.strip()]
@@ -1324,8 +1328,8 @@ def _add_report_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_report(args: argparse.Namespace) -> int:
+    from ._saved import load_fit
     from .report import load_truth, write_fit_report
-    from .saved import load_fit
 
     source = args.posterior / "posterior.nc" if args.posterior.is_dir() else args.posterior
     if args.out.exists() and not args.out.is_dir():
@@ -1366,8 +1370,8 @@ def _add_priors_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_priors(args: argparse.Namespace) -> int:
+    from ._priors import NOISE_PARAMETERS, priors_toml
     from .forces import terms_of
-    from .priors import NOISE_PARAMETERS, priors_toml
 
     if args.terms is None:
         names = None

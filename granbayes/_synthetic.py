@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pandas as pd
 
+from ._experiment import Experiment
 from ._jump_tables import jump_table
+from ._simulator import SolverSettings, simulate
 from .commands import COMMAND_NAMES
-from .experiment import Experiment
-from .simulator import SolverSettings, simulate
 
 __all__ = ["REFERENCE_DATA", "make_jumps", "write_experiment"]
 
@@ -35,7 +35,7 @@ def make_jumps(
     commands: Sequence[str] = COMMAND_NAMES,
     trials: int = 5,
     seed: int = 0,
-    label: str = "granbayes.synthetic.make_jumps",
+    label: str = "granbayes._synthetic.make_jumps",
     options: SolverSettings | None = None,
     decimals: int | None = 3,
 ) -> pd.DataFrame:
@@ -110,7 +110,7 @@ def write_experiment(folder: Path, jumps: pd.DataFrame, experiment: Experiment) 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     r, c = experiment.robot, experiment.command
-    lines = ["# SYNTHETIC data (granbayes.synthetic)", "[robot]"]
+    lines = ["# SYNTHETIC data (granbayes.write_experiment)", "[robot]"]
     lines += [f"{k} = {float(v)!r}" for k, v in vars(r).items()]
     lines += ["", "[command]"] + [f"{k} = {float(v)!r}" for k, v in vars(c).items()]
     lines += ["", "[bed]", f"phi_c = {experiment.phi_c!r}", ""]

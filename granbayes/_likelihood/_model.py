@@ -1,9 +1,9 @@
 """The log-posterior of a force law given every kind of measurement: :class:`JumpModel`.
 
 A :class:`JumpModel` turns a matrix of walker positions (in sampling coordinates, see
-:mod:`granbayes.priors`) into log-posterior values and per-unit log-likelihoods. It owns
+:mod:`granbayes._priors`) into log-posterior values and per-unit log-likelihoods. It owns
 the force law (its coordinates and their priors); each kind of measurement is a
-:class:`~granbayes.likelihood.Block` with its own coordinates and observation model. Every
+:class:`~granbayes._likelihood.Block` with its own coordinates and observation model. Every
 (walker, simulated jump) pair of every block is simulated in one batched simulator call
 (:func:`evaluate_models`, which also batches several models). A failed simulation makes
 that walker's log-probability ``-inf``; nothing raises.
@@ -33,16 +33,16 @@ from typing import Literal
 
 import numpy as np
 
-from ..experiment import Experiment
-from ..forces import PARAMETERS, TERMS, terms_of
-from ..priors import Prior, default_priors
-from ..simulator import (
+from .._experiment import Experiment
+from .._priors import Prior, default_priors
+from .._simulator import (
     ROBOT_FIELDS,
     SolverSettings,
     build_rows,
     simulate_frames_rows,
     simulate_rows,
 )
+from ..forces import PARAMETERS, TERMS, terms_of
 from ._blocks import Block, Coordinate, Law, Simulated
 from ._heights import HeightBlock, NoiseFamily, Observations, SigmaMode
 
@@ -71,7 +71,7 @@ class JumpModel:
         Force terms to fit (``depth`` is always included); parameters of other terms take
         their ``absent`` value unless given in ``fixed``.
     priors : mapping of str to Prior, optional
-        Priors per parameter (defaults: :func:`granbayes.priors.default_priors`; a block's
+        Priors per parameter (defaults: :func:`granbayes._priors.default_priors`; a block's
         own parameters fall back on the block's defaults).
     phi_mode : {"shared", "quadratic"}
         Parametrisation across volume fractions (module docstring).
@@ -91,7 +91,7 @@ class JumpModel:
         Robot parameters (``[robot]`` keys, and ``amplitude_mm``, the stroke) known only
         to a calibration: each becomes one sampled coordinate, shared by every volume
         fraction, command and kind of measurement of the model, with its calibration as
-        prior (:func:`granbayes.priors.calibration_priors`). The rest of the robot stays
+        prior (:func:`granbayes._priors.calibration_priors`). The rest of the robot stays
         at the experiment's values; without ``calibrated`` the model is the fixed-robot
         model, coordinate for coordinate.
     """
@@ -524,7 +524,7 @@ class JumpModel:
     def log_density(self, y_mm: np.ndarray, mean_mm: np.ndarray, sigma_mm: np.ndarray):
         """Log density of heights given predictive mean and scatter [mm].
 
-        The heights block's (:meth:`granbayes.likelihood.HeightBlock.log_density`).
+        The heights block's (:meth:`granbayes._likelihood.HeightBlock.log_density`).
 
         Parameters
         ----------
@@ -543,7 +543,7 @@ class JumpModel:
     ) -> np.ndarray:
         """One draw of a measured height [mm] per simulated height.
 
-        The heights block's (:meth:`granbayes.likelihood.HeightBlock.add_noise`).
+        The heights block's (:meth:`granbayes._likelihood.HeightBlock.add_noise`).
 
         Parameters
         ----------

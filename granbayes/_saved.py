@@ -5,10 +5,10 @@ the DataTree's attributes (JSON text) carry everything needed to rebuild the mod
 sampled with: the configuration (``config``), the priors (``priors``), the robot, command
 settings and ``phi_c`` (``experiment``), the force parameters (``parameters``) and one
 record per sampler run (``runs``). :class:`SavedFit` gives them back as granbayes objects,
-rebuilds each run's :class:`~granbayes.likelihood.JumpModel` and converts the posterior
+rebuilds each run's :class:`~granbayes._likelihood.JumpModel` and converts the posterior
 draws back to that model's sampling coordinates, so that prediction
-(:func:`granbayes.predict`), residuals (:func:`granbayes.criticism.residual_table`),
-PSIS-LOO comparison (:func:`granbayes.datatree.loo`, :func:`granbayes.datatree.compare`)
+(:func:`granbayes.predict`), residuals (:func:`granbayes._criticism.residual_table`),
+PSIS-LOO comparison (:func:`granbayes._datatree.loo`, :func:`granbayes._datatree.compare`)
 and reports (:func:`granbayes.report.write_fit_report`) work the same on a fit in memory
 (``SavedFit.from_datatree(result.datatree)``) and on one read from disk.
 
@@ -28,16 +28,16 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from . import datatree as gdt
+from . import _datatree as gdt
 from . import stats
+from ._errors import InputError
+from ._experiment import Experiment, Robot
+from ._fitting import FitSettings, part_models
+from ._likelihood import JumpModel
 from ._measurements import Measurements
+from ._priors import Prior
 from .commands import CommandSettings
-from .errors import InputError
-from .experiment import Experiment, Robot
-from .fitting import FitSettings, part_models
 from .kinds import KINDS, measurements
-from .likelihood import JumpModel
-from .priors import Prior
 
 __all__ = ["SavedFit", "as_saved_fit", "load_fit"]
 
@@ -211,7 +211,7 @@ class SavedFit:
         return stats.run_diagnostics(self.datatree)
 
     def loo(self) -> dict[str, object]:
-        """PSIS-LOO of the fit (:func:`granbayes.datatree.loo`)."""
+        """PSIS-LOO of the fit (:func:`granbayes._datatree.loo`)."""
         return stats.loo(self.datatree)
 
     # ------------------------------------------------------------------------------------

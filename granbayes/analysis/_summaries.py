@@ -1,7 +1,8 @@
 """Posterior summaries shared by the analyses: intervals, joint draws, paired comparisons.
 
 Small, general tools that the analysis scripts (``analyses/``) and the analysis modules
-(:mod:`granbayes.maps`, :mod:`granbayes.optimal`, :mod:`granbayes.mechanics`) build on:
+(:mod:`granbayes.analysis.maps`, :mod:`granbayes.analysis.optimal`,
+:mod:`granbayes.analysis.mechanics`) build on:
 
 * :func:`interval`, :func:`fmt_triple`, :func:`fmt_interval`: the median and the
   equal-tailed interval of a sample, and their text;
@@ -25,8 +26,8 @@ from collections.abc import Mapping
 
 import pandas as pd
 
-from .commands import SETTINGS as SETTING_COLUMNS
-from .experiment import Experiment
+from .._experiment import Experiment
+from ..commands import SETTINGS as SETTING_COLUMNS
 
 __all__ = [
     "cell_experiment",

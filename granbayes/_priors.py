@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import truncnorm
 
-from .errors import InputError
+from ._errors import InputError
 from .forces import Parameter, parameter, registered_parameters
 
 __all__ = [

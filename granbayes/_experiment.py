@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ._errors import InputError
 from ._tables import (
     _FRACTION,
     _NON_NEGATIVE,
@@ -28,7 +29,6 @@ from ._tables import (
     _suggest,
 )
 from .commands import CommandSettings
-from .errors import InputError
 
 __all__ = [
     "Experiment",

@@ -33,10 +33,10 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import minimize_scalar
 
-from ._kernel import CONE_MU, CONE_TAN
-from .analysis import cell_experiment
-from .experiment import Experiment, G
-from .simulator import Status, simulate, simulate_trajectory
+from .._experiment import Experiment, G
+from .._kernel import CONE_MU, CONE_TAN
+from .._simulator import Status, simulate, simulate_trajectory
+from ._summaries import cell_experiment
 
 __all__ = [
     "FAILED",
@@ -57,7 +57,7 @@ __all__ = [
 #: Largest integrator step of the recorded trajectories [s] (granbayes default).
 MAX_STEP_S = 5e-4
 #: The rigid-floor limit of the ground model (physics-model.md section 6): ``k`` [N/m],
-#: ``r_unload`` [-] (the same as ``granbayes.cli.HARD_GROUND_PARAMS``).
+#: ``r_unload`` [-] (the same as ``granbayes._cli.HARD_GROUND_PARAMS``).
 RIGID_FLOOR: dict[str, float] = {"k": 1.0e6, "r_unload": 50.0}
 #: Volume fraction of the rigid-floor jumps [-] (irrelevant without phi-dependent terms).
 RIGID_PHI = 0.612

@@ -46,8 +46,8 @@ import pandas as pd
 from scipy.special import log_ndtr
 from scipy.stats import truncnorm
 
+from .._priors import Prior
 from ..commands import SETTINGS, CommandProgram, CommandSettings, build_command
-from ..priors import Prior
 from ._blocks import (
     Block,
     Coordinate,

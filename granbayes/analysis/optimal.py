@@ -33,17 +33,19 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from .commands import COMMAND_NAMES, COMMANDS, CommandProgram, CommandSettings, build_command
-from .commands import SETTINGS as SETTING_COLUMNS
-from .errors import InputError
-from .experiment import Experiment
-from .forces import PARAMETER_NAMES
-from .simulator import build_rows, simulate_rows
-from .stats import CI_PROB, eti_probs, interval, p_greater, posterior_draws
+from .._errors import InputError
+from .._experiment import Experiment
+from .._simulator import build_rows, simulate_rows
+from ..commands import COMMAND_NAMES, COMMANDS, CommandProgram, CommandSettings, build_command
+from ..commands import SETTINGS as SETTING_COLUMNS
+from ..forces import PARAMETER_NAMES
+from ..stats import CI_PROB, eti_probs, interval, p_greater, posterior_draws
 
 __all__ = [
-    "OptimumSearch",
-    "SettingsGrid",
+    "MAX_FAIL_FRACTION",
+    "N_NOISE",
+    "NEAR_ZERO_MS",
+    "PUBLISHED_DELAY_MS",
     "delay_curve",
     "delay_settings",
     "delay_shape",
@@ -51,11 +53,13 @@ __all__ = [
     "draws_at",
     "force_names",
     "measured_settings",
+    "OptimumSearch",
     "published_check",
     "robustness",
     "search",
     "setting_table",
     "settings_grid",
+    "SettingsGrid",
 ]
 
 #: Settings whose posterior draws fail more often than this are left out of the search.

@@ -12,7 +12,7 @@ posterior draws of the force law. It reports two predictive distributions per se
   more measured jump would show (the light band). A fit that integrated each bed's
   volume fraction (``[bed] phi_sd``, quadratic laws) puts the new jump on a new bed: its
   phi is drawn about the target, its height read from the simulations at the bed
-  quadrature's volume fractions (:class:`granbayes.likelihood.BedPhi`).
+  quadrature's volume fractions (:class:`granbayes._likelihood.BedPhi`).
 
 Both are summarised by their mean, median and the ``ci_prob`` equal-tailed interval.
 
@@ -41,10 +41,10 @@ import numpy as np
 import pandas as pd
 
 from . import stats
+from ._likelihood import JumpModel, Observations
+from ._saved import PHI_TOLERANCE, SavedFit, as_saved_fit
 from .commands import COMMAND_NAMES
 from .commands import SETTINGS as SETTING_COLUMNS
-from .likelihood import JumpModel, Observations
-from .saved import PHI_TOLERANCE, SavedFit, as_saved_fit
 
 __all__ = ["Prediction", "predict"]
 

@@ -42,7 +42,7 @@ are too), plus the fine-grid densities (array arithmetic).
 
 Only a law that is defined between measured volume fractions can be evaluated at a node:
 the smooth laws in ``phi - phi_c`` (``phi_mode="quadratic"``). The fit decides where it
-applies (:mod:`granbayes.fitting`); here is only the integration.
+applies (:mod:`granbayes._fitting`); here is only the integration.
 """
 
 from __future__ import annotations

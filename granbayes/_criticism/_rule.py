@@ -18,8 +18,8 @@ from typing import Literal
 
 import numpy as np
 
+from .._sampler import SamplerSettings
 from ..forces import TERMS, terms_of
-from ..sampler import SamplerSettings
 
 
 class Verdict(enum.StrEnum):
@@ -84,7 +84,7 @@ class DiagnoseSettings:
         ELPD deficit [nats] (beyond 2 SE) of an extension below its nested parent that is
         taken as a sampling failure and rerun.
     screen : bool
-        Screen the candidates before fitting them (:func:`granbayes.fitting.screen`): in
+        Screen the candidates before fitting them (:func:`granbayes._fitting.screen`): in
         order of their largest log-likelihood gain, a candidate gets a full posterior
         only if that gain reaches ``min_gain`` and the best ELPD gain of the converged
         candidates fitted before it less ``min_gain + screen_margin``; the others can
@@ -98,7 +98,7 @@ class DiagnoseSettings:
         numba threads for the simulator.
     calibration : {"sample", "nominal"}
         Whether every fit samples the robot parameters ``experiment.toml`` gives an
-        uncertainty (:class:`granbayes.fitting.FitSettings`), so that no law is credited
+        uncertainty (:class:`granbayes._fitting.FitSettings`), so that no law is credited
         with what a miscalibrated robot explains, or takes the nominal robot as exact.
     """
 

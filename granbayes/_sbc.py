@@ -36,13 +36,20 @@ import numpy as np
 import pandas as pd
 
 from . import figures, stats
+from ._experiment import Experiment
 from ._files import atomic_path, write_json, write_text
+from ._fitting import FitPart, FitSettings, data_hash, fit, part_models
+from ._priors import Prior, default_priors
 from ._provenance import machine, package_versions
-from .campaign import CampaignResult, Task, run_campaign, spawn_seeds
-from .experiment import Experiment
-from .fitting import FitPart, FitSettings, data_hash, fit, part_models
+from .campaign import (
+    CampaignResult,
+    ClusterSettings,
+    Task,
+    cluster_settings,
+    run_campaign,
+    spawn_seeds,
+)
 from .forces import TERMS
-from .priors import Prior, default_priors
 
 __all__ = [
     "SBCResult",
@@ -309,15 +316,13 @@ def run_sbc(
     seed: int = 0,
     priors: Mapping[str, Prior] | None = None,
     n_rank_draws: int = 99,
-    scheduler_address: str | None = None,
-    n_workers: int | None = None,
-    numba_threads: int | None = None,
+    cluster: ClusterSettings | None = None,
     client=None,
     resume: bool = False,
     progress: bool = True,
-    connect_timeout_s: float = 10.0,
     data_source: str = "",
     log=None,
+    **deprecated: Any,
 ) -> SBCResult:
     """Simulation-based calibration of :func:`granbayes.fit` on an experiment's design.
 
@@ -341,12 +346,9 @@ def run_sbc(
     n_rank_draws : int
         Posterior draws each truth is ranked among (ranks ``0..n_rank_draws``); at most
         ``n_walkers x n_ensembles x n_draws`` of the sampler settings.
-    scheduler_address : str, optional
-        An existing Dask scheduler; default: a local cluster.
-    n_workers : int, optional
-        Worker processes of the local cluster (default: one per core).
-    numba_threads : int, optional
-        numba threads per replicate (default: cores // workers locally, 1 otherwise).
+    cluster : ClusterSettings, optional
+        Where the replicates run (:class:`granbayes.campaign.ClusterSettings`; default: a
+        local Dask cluster sized to the machine).
     client : distributed.Client, optional
         An already connected client.
     resume : bool
@@ -354,12 +356,13 @@ def run_sbc(
         for a folder of another study (other data, settings, priors or seed).
     progress : bool
         Show a progress bar.
-    connect_timeout_s : float
-        How long to try reaching ``scheduler_address`` [s].
     data_source : str
         Where the design came from (recorded).
     log : callable, optional
         Receives one-line messages.
+    **deprecated
+        ``scheduler_address``, ``n_workers``, ``numba_threads``, ``connect_timeout_s``:
+        the former loose form of ``cluster`` (``DeprecationWarning``).
 
     Returns
     -------
@@ -393,7 +396,7 @@ def run_sbc(
     design = design.reset_index(drop=True)
     used = {*(p.name for t in config.terms for p in TERMS[t].parameters), "sigma_mm"}
     description = {
-        "kind": "granbayes.sbc",
+        "kind": "granbayes._sbc",
         "data_sha256": data_hash(experiment, design),
         "config": config.to_dict(),
         "priors": {k: dataclasses.asdict(v) for k, v in sorted(priors.items()) if k in used},
@@ -429,13 +432,10 @@ def run_sbc(
         tasks,
         out,
         description=description,
-        scheduler_address=scheduler_address,
-        n_workers=n_workers,
+        cluster=cluster_settings(cluster, deprecated, "run_sbc"),
         client=client,
-        numba_threads=numba_threads,
         resume=resume,
         progress=progress,
-        connect_timeout_s=connect_timeout_s,
         results_name="ranks.csv",
         finalize=finalize,
         log=log,

@@ -18,10 +18,8 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
-from .._measurements import Measurements
-from .._search import drive
-from ..experiment import Experiment
-from ..fitting import (
+from .._experiment import Experiment
+from .._fitting import (
     FitResult,
     FitSettings,
     _as_measurements,
@@ -32,10 +30,12 @@ from ..fitting import (
     part_models,
     screen_many,
 )
+from .._likelihood import evaluate_models
+from .._measurements import Measurements
+from .._priors import Prior, default_priors
+from .._sampler import ProgressInfo
+from .._search import drive
 from ..forces import TERMS, terms_of
-from ..likelihood import evaluate_models
-from ..priors import Prior, default_priors
-from ..sampler import ProgressInfo
 from ._record import FitRecord
 from ._rule import DiagnoseSettings
 
@@ -206,7 +206,7 @@ class FitBank:
         Returns
         -------
         float
-            See :func:`granbayes.fitting.screen`.
+            See :func:`granbayes._fitting.screen`.
         """
         return self.screen_many([terms], parent)[0]
 
@@ -361,7 +361,7 @@ class FitBank:
         the law's full posterior at ``phi``, with lighter settings: two ensembles (one from the full
         posterior, one dispersed) and half the effective sample size, enough for a
         posterior mean of the held-out densities. Every request is one run of
-        :func:`granbayes.sampler.run_side_by_side`: one simulator call per round for all.
+        :func:`granbayes._sampler.run_side_by_side`: one simulator call per round for all.
 
         Parameters
         ----------

@@ -3,7 +3,7 @@
 The demo's work lives here, not in the command line: :func:`run_demo` simulates the five
 commands with a representative (not measured) law, sweeps the actuator frequency on a
 rigid floor, and fits depth + drag to the SYNTHETIC reference data set
-(:data:`granbayes.synthetic.REFERENCE_DATA`), writing figures and tables. It prints its
+(:data:`granbayes._synthetic.REFERENCE_DATA`), writing figures and tables. It prints its
 progress; ``granbayes demo --quiet`` silences it.
 """
 
@@ -18,12 +18,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
+from ._experiment import Experiment, load_experiment
 from ._files import atomic_path
+from ._simulator import simulate_table, simulate_trajectory
+from ._synthetic import REFERENCE_DATA
 from .commands import COMMAND_NAMES
-from .experiment import Experiment, load_experiment
 from .forces import PARAMETERS
-from .simulator import simulate_table, simulate_trajectory
-from .synthetic import REFERENCE_DATA
 
 if TYPE_CHECKING:  # matplotlib is imported where a figure is drawn: a faster start-up
     from matplotlib.figure import Figure
@@ -144,8 +144,8 @@ def _demo_hard_ground(out: Path, experiment: Experiment) -> None:
 
 def _demo_fit(out: Path, data: Path, seed: int) -> None:
     """Fit depth + drag per volume fraction to ``data`` and answer the uniqueness question."""
+    from ._fitting import FitSettings, compare_commands, fit
     from ._measurements import load_jumps
-    from .fitting import FitSettings, compare_commands, fit
     from .report import load_truth, write_fit_report
 
     experiment = load_experiment(data)
@@ -169,8 +169,8 @@ def run_demo(out: Path, data: Path | None = REFERENCE_DATA, seed: int = 0) -> No
     """Run the demo: simulate, fit, print summaries and write figures and tables to ``out``.
 
     Writes ``heights.csv`` (the five jumps; a valid ``simulate --batch`` input),
-    ``jumps.png`` (:func:`granbayes.plots.plot_jumps`), ``hard_ground.csv`` and
-    ``hard_ground.png`` (:func:`granbayes.plots.plot_hard_ground`), and, if ``data`` is
+    ``jumps.png`` (:func:`granbayes.figures.plot_jumps`), ``hard_ground.csv`` and
+    ``hard_ground.png`` (:func:`granbayes.figures.plot_hard_ground`), and, if ``data`` is
     given, the Bayesian fit of depth + drag to it in ``out/fit`` (posterior, summary,
     corner plots, predictive check, the uniqueness table).
 
