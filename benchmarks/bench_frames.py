@@ -94,7 +94,7 @@ def jump_durations(workload: Workload, options: SolverSettings) -> np.ndarray:
     times = (t_end[:, None] + grid[None, :]).ravel()
     offsets = np.arange(n + 1) * grid.size
     res = simulate_frames_rows(
-        workload.rows, progs, workload.command_index, times, offsets, options=options
+        workload.rows, progs, workload.command_index, times, offsets, settings=options
     )
     foot = res.frames[:, :, 0]
     flown = np.maximum.accumulate(foot, axis=1) >= _kernel.H_FLIGHT * 1e3
@@ -319,7 +319,7 @@ def _frames(
     sub: Workload, times: np.ndarray, offsets: np.ndarray, options: SolverSettings
 ) -> np.ndarray:
     return simulate_frames_rows(
-        sub.rows, programs(), sub.command_index, times, offsets, options=options
+        sub.rows, programs(), sub.command_index, times, offsets, settings=options
     ).frames_flat
 
 

@@ -171,7 +171,7 @@ def run(
         workload.rows,
         programs(),
         workload.command_index,
-        options=options,
+        settings=options,
         n_threads=n_threads,
     )
 

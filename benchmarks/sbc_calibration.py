@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
             experiment,
             design,
             args.out / mode,
-            config=config,
+            settings=config,
             n_replicates=args.replicates,
             seed=SEED,
             cluster=ClusterSettings(n_workers=args.workers, numba_threads=1),

@@ -81,7 +81,7 @@ def main() -> None:
             experiment,
             design,
             out,
-            config=config,
+            settings=config,
             n_replicates=args.replicates,
             seed=args.seed,
             n_rank_draws=args.rank_draws,

@@ -1170,7 +1170,7 @@ def _run_sbc_campaign(args, experiment, design, config, priors, log):
         experiment,
         design,
         args.out,
-        config=config,
+        settings=config,
         n_replicates=args.replicates,
         seed=args.seed,
         priors=priors,

@@ -8,6 +8,7 @@ line that used the old name). The aliases are not in ``__all__``.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.abc
 import importlib.machinery
@@ -16,8 +17,11 @@ import sys
 import warnings
 from collections.abc import Callable, Mapping
 from types import ModuleType
+from typing import Any, TypeVar
 
-__all__ = ["alias_getattr", "install_moved_modules", "warn_alias"]
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+__all__ = ["alias_getattr", "install_moved_modules", "renamed_keyword", "warn_alias"]
 
 
 def warn_alias(module: str, old: str, new: str) -> None:
@@ -99,3 +103,42 @@ def install_moved_modules(moved: Mapping[str, str]) -> None:
     """
     if not any(isinstance(f, _MovedModuleFinder) for f in sys.meta_path):
         sys.meta_path.append(_MovedModuleFinder(moved))
+
+
+def renamed_keyword(old: str, new: str = "settings") -> Callable[[_F], _F]:
+    """Decorator: a function's keyword ``old`` is now ``new``; ``old=`` still works, warned.
+
+    The project's vocabulary names every ``*Settings`` argument ``settings``; the public
+    functions that called it ``config`` or ``options`` accept the old keyword with a
+    ``DeprecationWarning`` that points at the caller's line.
+
+    Parameters
+    ----------
+    old : str
+        The former keyword.
+    new : str
+        The keyword now.
+
+    Returns
+    -------
+    callable
+        The decorator.
+    """
+
+    def decorate(func: _F) -> _F:
+        @functools.wraps(func)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            if old in kwargs:
+                if new in kwargs:
+                    raise TypeError(f"{func.__name__}() got both {old}= and {new}=")
+                warnings.warn(
+                    f"{func.__name__}({old}=...) is deprecated; use {new}=...",
+                    DeprecationWarning,
+                    stacklevel=2,
+                )
+                kwargs[new] = kwargs.pop(old)
+            return func(*args, **kwargs)
+
+        return wrapper  # type: ignore[return-value]
+
+    return decorate

@@ -62,7 +62,7 @@ import xarray as xr
 
 from . import _datatree as gdt
 from . import stats
-from ._deprecated import alias_getattr
+from ._deprecated import alias_getattr, renamed_keyword
 from ._experiment import Experiment
 from ._likelihood import (
     CALIBRATED_KEYS,
@@ -485,7 +485,7 @@ def _sampling_fn(models: Sequence[JumpModel]):
 
 def _run_parts(
     specs: Sequence[tuple[str, JumpModel, np.ndarray]],
-    config: FitSettings | Sequence[FitSettings],
+    settings: FitSettings | Sequence[FitSettings],
     seeds: Sequence[int],
     backend: Path | None,
     resume: bool,
@@ -497,7 +497,7 @@ def _run_parts(
     ``config`` is the settings of every run, or one per run (the fingerprint of a run's
     checkpoint); the sampler settings must be the same for all runs.
     """
-    configs = [config] * len(specs) if isinstance(config, FitSettings) else list(config)
+    configs = [settings] * len(specs) if isinstance(settings, FitSettings) else list(settings)
     s = configs[0].sampler
     if any(c.sampler != s for c in configs):
         raise ValueError("runs sampled side by side share their sampler settings")
@@ -542,14 +542,14 @@ def _labelled(progress: Callable[[str, ProgressInfo], None], label: str):
     return lambda info: progress(label, info)
 
 
-def _fingerprint(model: JumpModel, config: FitSettings, seed: int) -> str:
+def _fingerprint(model: JumpModel, settings: FitSettings, seed: int) -> str:
     """What a checkpoint must match to be resumed: data, priors, model and settings."""
     h = hashlib.sha256()
     for block in model.blocks:
         h.update(f"[{block.kind}]".encode())
         h.update(data_hash(model.experiment, block.table).encode())
     h.update(repr(sorted((k, dataclasses.astuple(v)) for k, v in model.priors.items())).encode())
-    h.update(repr((model.coordinate_names, config.to_dict(), seed)).encode())
+    h.update(repr((model.coordinate_names, settings.to_dict(), seed)).encode())
     h.update(b"blobs: log-likelihood per unit, then each block's kept values")
     return h.hexdigest()
 
@@ -573,59 +573,59 @@ def _held_out(model: JumpModel, data: Measurements) -> list:
 
 
 def _observation_settings(
-    config: FitSettings, phi_mode: PhiMode, experiment: Experiment
+    settings: FitSettings, phi_mode: PhiMode, experiment: Experiment
 ) -> ObservationSettings:
     return ObservationSettings(
-        noise=config.noise,
-        nu=config.nu,
-        sigma_mode=config.sigma_mode if phi_mode == "quadratic" else "per_phi",
-        bed=_bed(experiment, config, phi_mode),
+        noise=settings.noise,
+        nu=settings.nu,
+        sigma_mode=settings.sigma_mode if phi_mode == "quadratic" else "per_phi",
+        bed=_bed(experiment, settings, phi_mode),
     )
 
 
-def _bed(experiment: Experiment, config: FitSettings, phi_mode: PhiMode) -> BedPhi:
+def _bed(experiment: Experiment, settings: FitSettings, phi_mode: PhiMode) -> BedPhi:
     """A bed's latent volume fraction as the fit treats it (``FitSettings.bed_phi``)."""
-    if config.bed_phi == "integrate" and phi_mode == "quadratic" and experiment.phi_sd > 0:
-        return BedPhi(experiment.phi_sd, config.phi_nodes)
+    if settings.bed_phi == "integrate" and phi_mode == "quadratic" and experiment.phi_sd > 0:
+        return BedPhi(experiment.phi_sd, settings.phi_nodes)
     return BedPhi()
 
 
 def _make_model(
     data: Measurements | Observations,
     experiment: Experiment,
-    config: FitSettings,
+    settings: FitSettings,
     priors,
     phi_mode: PhiMode,
 ) -> JumpModel:
-    settings = _observation_settings(config, phi_mode, experiment)
+    observation = _observation_settings(settings, phi_mode, experiment)
     if isinstance(data, Observations):
         blocks = [
             HeightBlock(
                 data,
-                noise=settings.noise,
-                nu=settings.nu,
-                sigma_mode=settings.sigma_mode,
-                bed=settings.bed,
+                noise=observation.noise,
+                nu=observation.nu,
+                sigma_mode=observation.sigma_mode,
+                bed=observation.bed,
             )
         ]
     else:
-        blocks = blocks_for(data, settings)
+        blocks = blocks_for(data, observation)
     return JumpModel(
         blocks,
         experiment,
-        config.terms,
+        settings.terms,
         priors=priors,
         phi_mode=phi_mode,
-        fixed=config.fixed,
-        options=config.options,
-        n_threads=config.n_threads,
-        calibrated=_calibrated(experiment, config),
+        fixed=settings.fixed,
+        settings=settings.options,
+        n_threads=settings.n_threads,
+        calibrated=_calibrated(experiment, settings),
     )
 
 
-def _calibrated(experiment: Experiment, config: FitSettings) -> dict[str, Prior]:
+def _calibrated(experiment: Experiment, settings: FitSettings) -> dict[str, Prior]:
     """Priors of the robot parameters the fit samples (their calibration), by name."""
-    if config.calibration == "nominal":
+    if settings.calibration == "nominal":
         return {}
     sd = {k: v for k, v in experiment.uncertainty.items() if k in CALIBRATED_KEYS}
     return calibration_priors(experiment.robot_values, sd)
@@ -634,7 +634,7 @@ def _calibrated(experiment: Experiment, config: FitSettings) -> dict[str, Prior]
 def part_models(
     experiment: Experiment,
     data: pd.DataFrame | Measurements,
-    config: FitSettings,
+    settings: FitSettings,
     priors: Mapping[str, Prior],
 ) -> list[tuple[str, JumpModel, np.ndarray]]:
     """The sampler runs a fit consists of: label, log-posterior and the units of each.
@@ -649,7 +649,7 @@ def part_models(
     experiment : Experiment
     data : pandas.DataFrame or Measurements
         Validated jumps (row ``i`` is jump ``i``), or measurements of several kinds.
-    config : FitSettings
+    settings : FitSettings
     priors : mapping of str to Prior
 
     Returns
@@ -659,23 +659,24 @@ def part_models(
         jumps table) each run fits, in run order.
     """
     data = _as_measurements(data)
-    if config.phi_mode == "quadratic":
-        model = _make_model(data, experiment, config, priors, "quadratic")
+    if settings.phi_mode == "quadratic":
+        model = _make_model(data, experiment, settings, priors, "quadratic")
         return [("all", model, np.arange(data.n_units))]
     return [
         (
             f"phi={phi:g}",
-            _make_model(data.at_phi(phi), experiment, config, priors, "shared"),
+            _make_model(data.at_phi(phi), experiment, settings, priors, "per_phi"),
             data.units_at_phi(phi),
         )
         for phi in data.phis
     ]
 
 
+@renamed_keyword("config")
 def fit(
     experiment: Experiment,
     table: pd.DataFrame | Measurements,
-    config: FitSettings | None = None,
+    settings: FitSettings | None = None,
     *,
     seed: int = 0,
     priors: Mapping[str, Prior] | None = None,
@@ -694,7 +695,7 @@ def fit(
     table : pandas.DataFrame or Measurements
         Validated jumps (:func:`granbayes.load_jumps`), or measurements of several kinds
         (:func:`granbayes.load_measurements`): every kind enters one joint posterior.
-    config : FitSettings, optional
+    settings : FitSettings, optional
         Terms, parametrisation, noise, sampler settings.
     seed : int
         Master seed; recorded in the result.
@@ -717,19 +718,19 @@ def fit(
     -------
     FitResult
     """
-    config = config or FitSettings()
+    settings = settings or FitSettings()
     priors = dict(priors if priors is not None else default_priors())
     data = _as_measurements(table)
     backend = Path(backend) if backend is not None else None
-    specs = part_models(experiment, data, config, priors)
+    specs = part_models(experiment, data, settings, priors)
     warms = [
         _warm_positions(model, warm_start, float(model.phis[0]))
-        if warm_start is not None and config.phi_mode == "per_phi"
+        if warm_start is not None and settings.phi_mode == "per_phi"
         else None
         for _, model, _ in specs
     ]
-    parts = _run_parts(specs, config, _seeds(seed, len(specs)), backend, resume, warms, progress)
-    return _assemble(parts, experiment, data, config, priors, seed, data_source)
+    parts = _run_parts(specs, settings, _seeds(seed, len(specs)), backend, resume, warms, progress)
+    return _assemble(parts, experiment, data, settings, priors, seed, data_source)
 
 
 def _warm_positions(
@@ -778,7 +779,7 @@ def _warm_positions(
 def screen(
     experiment: Experiment,
     table: pd.DataFrame,
-    config: FitSettings,
+    settings: FitSettings,
     parent: xr.DataTree,
     *,
     seed: int = 0,
@@ -809,7 +810,7 @@ def screen(
     experiment : Experiment
     table : pandas.DataFrame
         Validated jumps.
-    config : FitSettings
+    settings : FitSettings
         The extended law (``per_phi`` mode).
     parent : xarray.DataTree
         The fitted nested parent law.
@@ -826,7 +827,7 @@ def screen(
         has no draws at some volume fraction).
     """
     return screen_many(
-        experiment, table, [config], parent, seeds=[seed], priors=priors, n_rounds=n_rounds
+        experiment, table, [settings], parent, seeds=[seed], priors=priors, n_rounds=n_rounds
     )[0]
 
 
@@ -1066,15 +1067,15 @@ def _run_record(part: FitPart) -> dict:
     }
 
 
-def _bed_warnings(parts: list[FitPart], config: FitSettings, phi_sd: float) -> list[str]:
+def _bed_warnings(parts: list[FitPart], settings: FitSettings, phi_sd: float) -> list[str]:
     """What a fit does not integrate of ``[bed] phi_sd`` (``FitSettings.bed_phi``)."""
     given = f"experiment.toml gives [bed] phi_sd = {phi_sd:g}; "
-    if config.bed_phi == "measured":
+    if settings.bed_phi == "measured":
         return [
             given + "this fit takes each bed's phi as exact (the measured value): its "
             "intervals do not include that uncertainty"
         ]
-    if config.phi_mode == "per_phi":
+    if settings.phi_mode == "per_phi":
         return [
             given + "in per_phi mode a volume fraction's coefficients are those of the beds "
             "prepared at it (the law is not defined beside the measured value): the beds' "
@@ -1091,11 +1092,11 @@ def _bed_warnings(parts: list[FitPart], config: FitSettings, phi_sd: float) -> l
 
 
 def _warnings(
-    parts: list[FitPart], config: FitSettings, experiment: Experiment | None = None
+    parts: list[FitPart], settings: FitSettings, experiment: Experiment | None = None
 ) -> list[str]:
     out = []
     if experiment is not None and experiment.uncertain:
-        sampled = set(_calibrated(experiment, config))
+        sampled = set(_calibrated(experiment, settings))
         exact = [k for k, v in experiment.uncertainty.items() if v > 0 and k not in sampled]
         if exact:
             out.append(
@@ -1106,12 +1107,12 @@ def _warnings(
                 + ("those uncertainties" if len(exact) > 1 else "that uncertainty")
                 + (
                     ""
-                    if config.calibration == "nominal"
+                    if settings.calibration == "nominal"
                     else " (a fit samples the robot's own parameters and amplitude_mm only)"
                 )
             )
         if experiment.phi_sd > 0:
-            out.extend(_bed_warnings(parts, config, experiment.phi_sd))
+            out.extend(_bed_warnings(parts, settings, experiment.phi_sd))
     for p in parts:
         out.extend(f"run {p.label}: {w}" for w in p.run.warnings)
         if not p.run.converged and not p.run.warnings:
@@ -1234,13 +1235,13 @@ def _thinned_dataset(
 
 
 def _prior_draws(
-    parts: list[FitPart], phis: np.ndarray, full: Measurements, config: FitSettings, seed: int
+    parts: list[FitPart], phis: np.ndarray, full: Measurements, settings: FitSettings, seed: int
 ) -> tuple[dict, dict, dict]:
     """Prior draws per volume fraction [SI] and the measurements simulated from them.
 
     Returns the prior, its replicates on (chain, draw) and its thinned replicates.
     """
-    n = config.n_prior_draws
+    n = settings.n_prior_draws
     values_of = [p.model.parameter_values(np.zeros((1, p.model.ndim)), phis) for p in parts]
     names = list(dict.fromkeys(k for v in values_of for k in v))
     prior = {name: np.full((1, n, len(phis)), np.nan) for name in names}
@@ -1289,7 +1290,7 @@ class _Draws:
 
 
 def _draws(
-    parts: list[FitPart], phis: np.ndarray, full: Measurements, config: FitSettings, seed: int
+    parts: list[FitPart], phis: np.ndarray, full: Measurements, settings: FitSettings, seed: int
 ) -> _Draws:
     """Every run's kept draws mapped onto the fit's volume fractions and units.
 
@@ -1338,7 +1339,7 @@ def _draws(
         _replicate(part, flat, rep_seed, extras, thin, predictive, thinned, (n_chain, n_draw))
         lp[..., i] = _to_shape(r.log_prob, n_chain, n_draw)
         log_prior += part.model.log_prior_density(flat).reshape(n_chain, n_draw)
-        if config.phi_mode == "quadratic":
+        if settings.phi_mode == "quadratic":
             _add_coefficients(post, dims, part.model.coordinate_names, samples)
     return _Draws(post, dims, loglik, predictive, thinned, thin, lp, log_prior)
 
@@ -1367,7 +1368,7 @@ def _fit_attrs(
     parts: list[FitPart],
     experiment: Experiment,
     observed: Measurements,
-    config: FitSettings,
+    settings: FitSettings,
     priors: Mapping[str, Prior],
     seed: int,
     data_source: str,
@@ -1378,7 +1379,7 @@ def _fit_attrs(
         "seed": int(seed),
         # package versions and the machine: what bit-identical results require to match
         **environment(),
-        "config": config.to_dict(),
+        "config": settings.to_dict(),
         "priors": {k: dataclasses.asdict(v) for k, v in {**priors, **calibrated}.items()},
         # robot parameters sampled with their calibration as prior (FitSettings.calibration)
         "calibrated": {
@@ -1396,7 +1397,7 @@ def _fit_attrs(
         "parameters": list(parts[0].model.parameters),
         "runs": [_run_record(p) for p in parts],
         "converged": all(p.run.converged for p in parts),
-        "warnings": _warnings(parts, config, experiment),
+        "warnings": _warnings(parts, settings, experiment),
         "interval": f"{stats.CI_PROB:.0%} equal-tailed",
         "log_prior": "density of the reported parameter values, summed over runs",
     }
@@ -1411,7 +1412,7 @@ def _assemble(
     parts: list[FitPart],
     experiment: Experiment,
     data: Measurements,
-    config: FitSettings,
+    settings: FitSettings,
     priors: Mapping[str, Prior],
     seed: int,
     data_source: str,
@@ -1424,15 +1425,15 @@ def _assemble(
     for part in parts:
         part.data = data.select(part.units)
     phis = data.phis
-    draws = _draws(parts, phis, data, config, seed)
+    draws = _draws(parts, phis, data, settings, seed)
     prior, prior_pred, prior_thin = {}, {}, {}
-    if config.n_prior_draws > 0:
-        prior, prior_pred, prior_thin = _prior_draws(parts, phis, data, config, seed)
+    if settings.n_prior_draws > 0:
+        prior, prior_pred, prior_thin = _prior_draws(parts, phis, data, settings, seed)
     n_draw = draws.lp.shape[1]
     thinned = {
         "posterior_predictive": _thinned_dataset(draws.thinned, draws.thin, n_draw),
         "prior_predictive": _thinned_dataset(
-            prior_thin, _thin_index(parts, config.n_prior_draws), config.n_prior_draws
+            prior_thin, _thin_index(parts, settings.n_prior_draws), settings.n_prior_draws
         ),
     }
     dt = gdt.build_datatree(
@@ -1447,7 +1448,7 @@ def _assemble(
         posterior_predictive=draws.predictive,
         observed=_observed(data),
         sample_stats={"lp": draws.lp},
-        attrs=_fit_attrs(parts, experiment, data, config, priors, seed, data_source),
+        attrs=_fit_attrs(parts, experiment, data, settings, priors, seed, data_source),
         stats_dims={"lp": ["run"]},
         prior=prior,
         prior_predictive=prior_pred,
@@ -1455,7 +1456,7 @@ def _assemble(
         var_attrs=_variable_attrs(parts[0].model.parameters, parts[0].model.calibrated),
         thinned=thinned,
     )
-    return FitResult(dt, parts, config, seed, _warnings(parts, config, experiment))
+    return FitResult(dt, parts, settings, seed, _warnings(parts, settings, experiment))
 
 
 # ----------------------------------------------------------------------------------------
@@ -1562,7 +1563,7 @@ def compare_commands(
             if sub.empty:
                 continue
             obs = Observations.from_table(sub)
-            model = _make_model(obs, experiment, config, priors, "shared")
+            model = _make_model(obs, experiment, config, priors, "per_phi")
             specs.append((command, model, sub["jump"].to_numpy()))
             spec_seeds.append(next(seeds))
             owner.append(k)

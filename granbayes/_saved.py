@@ -325,7 +325,7 @@ class SavedFit:
         model = self.model(label)
         post = self.datatree["posterior"].to_dataset()
         n = post.sizes["chain"] * post.sizes["draw"]
-        phi_run = float(model.phis[0]) if model.phi_mode == "shared" else None
+        phi_run = float(model.phis[0]) if model.phi_mode == "per_phi" else None
         columns = []
         for name, prior in zip(model.coordinate_names, model.coordinate_priors, strict=True):
             if ":c" in name:  # quadratic coefficient, stored in sampling coordinates

@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from . import figures, stats
+from ._deprecated import renamed_keyword
 from ._experiment import Experiment
 from ._files import atomic_path, write_json, write_text
 from ._fitting import FitPart, FitSettings, data_hash, fit, part_models
@@ -92,7 +93,7 @@ class SBCResult:
 def draw_replicate(
     experiment: Experiment,
     design: pd.DataFrame,
-    config: FitSettings,
+    settings: FitSettings,
     priors: Mapping[str, Prior],
     rng: np.random.Generator,
 ) -> tuple[pd.DataFrame, dict[float, dict[str, float]]]:
@@ -110,7 +111,7 @@ def draw_replicate(
     design : pandas.DataFrame
         The jumps table of the experiment (:func:`granbayes.load_jumps`); its heights are
         replaced.
-    config : FitSettings
+    settings : FitSettings
         Terms, noise family and fixed parameters (``per_phi`` mode).
     priors : mapping of str to Prior
         The priors to draw from.
@@ -132,7 +133,7 @@ def draw_replicate(
     table = design.reset_index(drop=True).copy()
     heights = np.full(len(table), np.nan)
     truths: dict[float, dict[str, float]] = {}
-    drawn = dataclasses.replace(config, calibration="sample")
+    drawn = dataclasses.replace(settings, calibration="sample")
     for _, model, rows in part_models(experiment, table, drawn, priors):
         phi = float(model.phis[0])
         for _ in range(_MAX_PRIOR_TRIES):
@@ -148,7 +149,9 @@ def draw_replicate(
         values = model.parameter_values(u)
         sigma = float(values["sigma_mm"][0, 0])
         n = len(rows)
-        eps = rng.standard_normal(n) if config.noise == "normal" else rng.standard_t(config.nu, n)
+        eps = (
+            rng.standard_normal(n) if settings.noise == "normal" else rng.standard_t(settings.nu, n)
+        )
         heights[rows] = sim[0, model.obs.config_of_obs] + sigma * eps
         truths[float(phi)] = {
             name: float(values[name][0, 0])
@@ -202,7 +205,7 @@ def rank_draws(part: FitPart, n_rank_draws: int) -> tuple[np.ndarray, bool]:
 def replicate_ranks(
     experiment: Experiment,
     design: pd.DataFrame,
-    config: FitSettings,
+    settings: FitSettings,
     priors: Mapping[str, Prior],
     n_rank_draws: int,
     replicate: int,
@@ -232,9 +235,9 @@ def replicate_ranks(
     """
     truth_seed, fit_seed = spawn_seeds(seed, 2)
     table, truths = draw_replicate(
-        experiment, design, config, priors, np.random.default_rng(truth_seed)
+        experiment, design, settings, priors, np.random.default_rng(truth_seed)
     )
-    result = fit(experiment, table, config, seed=fit_seed, priors=priors)
+    result = fit(experiment, table, settings, seed=fit_seed, priors=priors)
     rows = []
     for part in result.parts:
         phi = float(part.model.phis[0])
@@ -306,12 +309,13 @@ def _summary_markdown(summary: Mapping[str, Any]) -> str:
 # ----------------------------------------------------------------------------------------
 # The campaign
 # ----------------------------------------------------------------------------------------
+@renamed_keyword("config")
 def run_sbc(
     experiment: Experiment,
     design: pd.DataFrame,
     out: str | Path,
     *,
-    config: FitSettings | None = None,
+    settings: FitSettings | None = None,
     n_replicates: int = 100,
     seed: int = 0,
     priors: Mapping[str, Prior] | None = None,
@@ -334,7 +338,7 @@ def run_sbc(
         The experiment's jumps (:func:`granbayes.load_jumps`): which jumps to simulate.
     out : str or Path
         Output folder (built as ``OUT.partial``; replaced only at the end).
-    config : FitSettings, optional
+    settings : FitSettings, optional
         Terms and sampler settings of the fits (``phi_mode="per_phi"``).
     n_replicates : int
         Number of replicates (each a prior draw, a simulation and a fit).
@@ -376,12 +380,12 @@ def run_sbc(
     granbayes.campaign.CampaignError
         Unreachable scheduler, or resume of another study; nothing is written then.
     """
-    config = config or FitSettings(terms=("depth", "drag"))
-    if config.phi_mode != "per_phi":
-        raise ValueError(f"phi_mode must be 'per_phi' for SBC, got {config.phi_mode!r}")
+    settings = settings or FitSettings(terms=("depth", "drag"))
+    if settings.phi_mode != "per_phi":
+        raise ValueError(f"phi_mode must be 'per_phi' for SBC, got {settings.phi_mode!r}")
     if int(n_replicates) < 1:
         raise ValueError(f"n_replicates must be >= 1, got {n_replicates}")
-    s = config.sampler
+    s = settings.sampler
     kept = s.n_walkers * s.n_ensembles * s.n_draws
     if not 1 <= int(n_rank_draws) <= kept:
         raise ValueError(
@@ -391,14 +395,14 @@ def run_sbc(
     if len(design) == 0:
         raise ValueError("design has no jumps")
     # what the workers need; thread counts do not change results
-    config = dataclasses.replace(config, n_threads=None, n_prior_draws=0)
+    settings = dataclasses.replace(settings, n_threads=None, n_prior_draws=0)
     priors = dict(priors if priors is not None else default_priors())
     design = design.reset_index(drop=True)
-    used = {*(p.name for t in config.terms for p in TERMS[t].parameters), "sigma_mm"}
+    used = {*(p.name for t in settings.terms for p in TERMS[t].parameters), "sigma_mm"}
     description = {
         "kind": "granbayes._sbc",
         "data_sha256": data_hash(experiment, design),
-        "config": config.to_dict(),
+        "config": settings.to_dict(),
         "priors": {k: dataclasses.asdict(v) for k, v in sorted(priors.items()) if k in used},
         "seed": int(seed),
         "n_rank_draws": int(n_rank_draws),
@@ -416,7 +420,7 @@ def run_sbc(
         Task(
             f"replicate-{i:05d}",
             replicate_ranks,
-            (experiment, design, config, priors, int(n_rank_draws), i),
+            (experiment, design, settings, priors, int(n_rank_draws), i),
             seed=s,
         )
         for i, s in enumerate(seeds)
@@ -425,7 +429,7 @@ def run_sbc(
 
     def finalize(work: Path, result: CampaignResult) -> None:
         holder["summary"] = _write_outputs(
-            work, result, config, seed, n_replicates, n_rank_draws, description, data_source
+            work, result, settings, seed, n_replicates, n_rank_draws, description, data_source
         )
 
     campaign = run_campaign(
@@ -446,7 +450,7 @@ def run_sbc(
 def _write_outputs(
     work: Path,
     result: CampaignResult,
-    config: FitSettings,
+    settings: FitSettings,
     seed: int,
     n_replicates: int,
     n_rank_draws: int,
@@ -462,8 +466,8 @@ def _write_outputs(
         "granbayes_version": package_versions()["granbayes"],
         "data_source": data_source,
         "data_sha256": description["data_sha256"],
-        "terms": list(config.terms),
-        "config": config.to_dict(),
+        "terms": list(settings.terms),
+        "config": settings.to_dict(),
         "priors": description["priors"],
         "seed": int(seed),
         "n_replicates": int(n_replicates),
@@ -499,7 +503,7 @@ def _write_outputs(
                 pit,
                 phis,
                 seed=seed,
-                title=f"SBC of fit ({' + '.join(config.terms)}), {data_source or 'design'}",
+                title=f"SBC of fit ({' + '.join(settings.terms)}), {data_source or 'design'}",
             )
             with atomic_path(work / "sbc_ecdf.png") as tmp:
                 fig.savefig(tmp, dpi=110, format="png")

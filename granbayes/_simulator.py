@@ -39,7 +39,7 @@ import pandas as pd
 from numpy.typing import ArrayLike
 
 from . import _kernel
-from ._deprecated import alias_getattr
+from ._deprecated import alias_getattr, renamed_keyword
 from ._experiment import Experiment, Robot
 from .commands import CommandProgram, CommandSettings, build_command
 from .forces import PARAMETER_NAMES, PARAMETERS, parameter_term
@@ -448,12 +448,13 @@ def _program_tables(
     return own, np.ascontiguousarray(seg), np.ascontiguousarray(meta[index])
 
 
+@renamed_keyword("options")
 def simulate_rows(
     rows: np.ndarray,
     programs: Sequence[CommandProgram],
     command_index: ArrayLike | None = None,
     *,
-    options: SolverSettings | None = None,
+    settings: SolverSettings | None = None,
     n_threads: int | None = None,
     amplitude_scale: ArrayLike | None = None,
 ) -> Heights:
@@ -467,7 +468,7 @@ def simulate_rows(
         The commands used in the batch.
     command_index : array_like of int, shape (n,), optional
         Which program each row uses (default: all the first).
-    options : SolverSettings, optional
+    settings : SolverSettings, optional
         Integrator settings.
     n_threads : int, optional
         numba threads to use (default: numba's current setting).
@@ -495,19 +496,20 @@ def simulate_rows(
     heights = np.empty(n)
     status = np.empty(n, dtype=np.int8)
     n_steps = np.empty(n, dtype=np.int64)
-    opts = (options or SolverSettings()).as_array()
+    opts = (settings or SolverSettings()).as_array()
     with _threads(n_threads):
         _kernel.simulate_batch(rows, index, seg, meta, opts, heights, status, n_steps)
     return Heights(height_mm=heights * 1e3, status=status, n_steps=n_steps)
 
 
+@renamed_keyword("options")
 def simulate(
     command: str | CommandProgram,
     phi: ArrayLike,
     params: Mapping[str, ArrayLike],
     *,
     experiment: Experiment | None = None,
-    options: SolverSettings | None = None,
+    settings: SolverSettings | None = None,
     n_threads: int | None = None,
 ) -> Heights:
     """Jump heights of one command for many parameter sets (e.g. the walkers of a sampler).
@@ -523,7 +525,7 @@ def simulate(
         [-], ``k2`` [N/m^2], ``b`` [N s/m]); scalars and 1-d arrays broadcast together.
     experiment : Experiment, optional
         Robot and command settings (defaults of the physics model if omitted).
-    options : SolverSettings, optional
+    settings : SolverSettings, optional
         Integrator settings.
     n_threads : int, optional
         numba threads.
@@ -536,7 +538,7 @@ def simulate(
     exp = _experiment(experiment)
     rows = build_rows(exp.robot, phi, params)
     return simulate_rows(
-        rows, [_program(command, exp.command)], options=options, n_threads=n_threads
+        rows, [_program(command, exp.command)], settings=settings, n_threads=n_threads
     )
 
 
@@ -634,11 +636,12 @@ def _table_programs(
     return index, programs
 
 
+@renamed_keyword("options")
 def simulate_table(
     table: pd.DataFrame,
     experiment: Experiment | None = None,
     *,
-    options: SolverSettings | None = None,
+    settings: SolverSettings | None = None,
     n_threads: int | None = None,
 ) -> pd.DataFrame:
     """Simulate one jump per row of a table (the CLI's batch mode).
@@ -652,7 +655,7 @@ def simulate_table(
         ``settle_periods``).
     experiment : Experiment, optional
         Defaults for the overrides.
-    options : SolverSettings, optional
+    settings : SolverSettings, optional
         Integrator settings.
     n_threads : int, optional
         numba threads.
@@ -680,20 +683,21 @@ def simulate_table(
         )
         rows[:, j] = np.where(np.isnan(col), default, col)
     index, programs = _table_programs(table, exp.command)
-    res = simulate_rows(rows, programs, index, options=options, n_threads=n_threads)
+    res = simulate_rows(rows, programs, index, settings=settings, n_threads=n_threads)
     out = table.copy()
     out["height_mm"] = res.height_mm
     out["status"] = _status_labels(res.status)
     return out
 
 
+@renamed_keyword("options")
 def simulate_trajectory(
     command: str | CommandProgram,
     phi: float,
     params: Mapping[str, float],
     *,
     experiment: Experiment | None = None,
-    options: SolverSettings | None = None,
+    settings: SolverSettings | None = None,
     max_step: float = 5e-4,
 ) -> Trajectory:
     """Simulate one jump and record its trajectory.
@@ -708,7 +712,7 @@ def simulate_trajectory(
         Force-term parameters [SI].
     experiment : Experiment, optional
         Robot and command settings.
-    options : SolverSettings, optional
+    settings : SolverSettings, optional
         Integrator settings; ``max_step`` below overrides its ``max_step``.
     max_step : float
         Largest step [s], so that plots are smooth (the recorded points are exact
@@ -720,7 +724,7 @@ def simulate_trajectory(
     """
     exp = _experiment(experiment)
     program = _program(command, exp.command)
-    opts = options or SolverSettings()
+    opts = settings or SolverSettings()
     opts = dataclasses.replace(opts, max_step=min(opts.max_step, max_step))
     row = build_rows(exp.robot, phi, params)[0]
     seg, meta = program.as_table()
@@ -854,13 +858,14 @@ def _frame_layout(
     return times, offsets
 
 
+@renamed_keyword("options")
 def simulate_frames_rows(
     rows: np.ndarray,
     programs: Sequence[CommandProgram],
     program_index: ArrayLike | None,
     frame_times_s: ArrayLike,
     frame_offsets: ArrayLike | None = None,
-    options: SolverSettings | None = None,
+    settings: SolverSettings | None = None,
     n_threads: int | None = None,
     amplitude_scale: ArrayLike | None = None,
 ) -> TrackedHeights:
@@ -894,7 +899,7 @@ def simulate_frames_rows(
         Jump ``i`` has the frames ``frame_offsets[i]:frame_offsets[i + 1]`` of the
         concatenated ``frame_times_s`` (``frame_offsets[0] = 0``, non-decreasing, last =
         ``n_frames_total``).
-    options : SolverSettings, optional
+    settings : SolverSettings, optional
         Integrator settings.
     n_threads : int, optional
         numba threads to use (default: numba's current setting).
@@ -951,7 +956,7 @@ def simulate_frames_rows(
     status = np.empty(n, dtype=np.int8)
     n_steps = np.empty(n, dtype=np.int64)
     out = np.empty((times.size, _kernel.FRAME_SIZE))
-    opts = (options or SolverSettings()).as_array()
+    opts = (settings or SolverSettings()).as_array()
     with _threads(n_threads):
         _kernel.simulate_frames_batch(
             rows, index, seg, meta, opts, times, offsets, 1e3, heights, status, n_steps, out
@@ -969,6 +974,7 @@ def simulate_frames_rows(
     )
 
 
+@renamed_keyword("options")
 def simulate_frames(
     command: str | CommandProgram,
     phi: float,
@@ -976,7 +982,7 @@ def simulate_frames(
     t_s: ArrayLike,
     *,
     experiment: Experiment | None = None,
-    options: SolverSettings | None = None,
+    settings: SolverSettings | None = None,
 ) -> TrackedJump:
     """Simulate one tracked jump: positions and velocities at given frame times, and its height.
 
@@ -993,7 +999,7 @@ def simulate_frames(
         most :data:`MAX_FRAME_AFTER_S` after its end; any order.
     experiment : Experiment, optional
         Robot and command settings.
-    options : SolverSettings, optional
+    settings : SolverSettings, optional
         Integrator settings.
 
     Returns
@@ -1019,7 +1025,7 @@ def simulate_frames(
     if rows.shape[0] != 1:
         raise ValueError("simulate_frames simulates one jump: phi and parameters are scalars")
     res = simulate_frames_rows(
-        rows, [program], None, times, np.array([0, times.size]), options=options
+        rows, [program], None, times, np.array([0, times.size]), settings=settings
     )
     data = pd.DataFrame({"t_s": times})
     for j, column in enumerate(FRAME_COLUMNS):

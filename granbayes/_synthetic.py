@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from ._deprecated import renamed_keyword
 from ._experiment import Experiment
 from ._jump_tables import jump_table
 from ._simulator import SolverSettings, simulate
@@ -25,6 +26,7 @@ __all__ = ["REFERENCE_DATA", "make_jumps", "write_experiment"]
 REFERENCE_DATA: Path = Path(str(importlib.resources.files("granbayes") / "data" / "reference"))
 
 
+@renamed_keyword("options")
 def make_jumps(
     truth: Callable[[float], Mapping[str, float]],
     sigma_mm: Callable[[float], float] | float,
@@ -36,7 +38,7 @@ def make_jumps(
     trials: int = 5,
     seed: int = 0,
     label: str = "granbayes._synthetic.make_jumps",
-    options: SolverSettings | None = None,
+    settings: SolverSettings | None = None,
     decimals: int | None = 3,
 ) -> pd.DataFrame:
     """Simulate the true law for every cell and add seeded Gaussian scatter.
@@ -58,7 +60,7 @@ def make_jumps(
         command, trial).
     label : str
         Generator named in the ``source`` column.
-    options : SolverSettings, optional
+    settings : SolverSettings, optional
         Integrator settings (default: converged).
     decimals : int or None
         ``height_mm`` is rounded to this many decimals of a millimetre (3: micrometres, like
@@ -70,10 +72,10 @@ def make_jumps(
         ``phi, command, freq_hz, trial, height_mm, true_height_mm, source``.
     """
     exp = experiment or Experiment()
-    opts = options or SolverSettings.converged()
+    opts = settings or SolverSettings.converged()
 
     def kernel_height(command, phi, params, cell_exp):
-        return simulate(command, phi, params, experiment=cell_exp, options=opts).height_mm[0]
+        return simulate(command, phi, params, experiment=cell_exp, settings=opts).height_mm[0]
 
     return jump_table(
         kernel_height,

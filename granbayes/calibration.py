@@ -52,6 +52,7 @@ import pandas as pd
 from scipy import stats
 
 from ._criticism import Candidate, DiagnoseSettings, DiagnosisRecord, diagnose, distinguished
+from ._deprecated import renamed_keyword
 from ._experiment import Experiment, Robot
 from ._sampler import ProgressInfo
 from .commands import COMMAND_NAMES, COMMANDS, CommandSettings
@@ -364,7 +365,8 @@ def _paired_sum(diff: np.ndarray) -> tuple[float, float]:
     return float(np.sum(diff)), float(np.sqrt(len(diff)) * np.std(diff, ddof=1))
 
 
-def as_good_as_truth(deficit: float, se: float, config: DiagnoseSettings | None = None) -> bool:
+@renamed_keyword("config")
+def as_good_as_truth(deficit: float, se: float, settings: DiagnoseSettings | None = None) -> bool:
     """Whether a law's fresh-replicate deficit is within the rule's margin.
 
     The rule calls a difference real when it exceeds ``min_gain`` nats *and* ``se_factor``
@@ -375,14 +377,14 @@ def as_good_as_truth(deficit: float, se: float, config: DiagnoseSettings | None 
     ----------
     deficit, se : float
         From :func:`fresh_deficit` [nats].
-    config : DiagnoseSettings, optional
+    settings : DiagnoseSettings, optional
         The rule (default settings if omitted).
 
     Returns
     -------
     bool
     """
-    return not distinguished(deficit, se, config or DiagnoseSettings())
+    return not distinguished(deficit, se, settings or DiagnoseSettings())
 
 
 class OverBudget(RuntimeError):
@@ -415,10 +417,11 @@ class StepCounter:
             raise OverBudget(f"{self.steps} sampler steps > the budget of {self.budget}")
 
 
+@renamed_keyword("config")
 def diagnose_case(
     kind: str,
     index: int,
-    config: DiagnoseSettings | None = None,
+    settings: DiagnoseSettings | None = None,
     *,
     seed: int,
     step_budget: int | None = STEP_BUDGET,
@@ -431,7 +434,7 @@ def diagnose_case(
         Case kind (:data:`CASE_KINDS`).
     index : int
         Replicate number within its kind (recorded).
-    config : DiagnoseSettings, optional
+    settings : DiagnoseSettings, optional
         The rule and sampler settings under study.
     seed : int
         The task's seed: the case is drawn from it, and ``diagnose`` gets a spawned one.
@@ -466,7 +469,7 @@ def diagnose_case(
         d = diagnose(
             case.experiment,
             case.table,
-            config,
+            settings,
             seed=diag_seed,
             log=lambda *a, **k: None,
             progress=counter,
@@ -510,7 +513,7 @@ def diagnose_case(
             "gain_fresh_se": gain_fresh_se,
             "deficit_fresh": deficit,
             "deficit_fresh_se": deficit_se,
-            "as_good_as_truth": as_good_as_truth(deficit, deficit_se, config),
+            "as_good_as_truth": as_good_as_truth(deficit, deficit_se, settings),
             "n_cells": len(misfit),
             "dof_min": float(misfit["dof"].min()) if "dof" in misfit else np.nan,
             "baseline_max_abs_z": float(misfit["z"].abs().max()),
@@ -530,8 +533,9 @@ def diagnose_case(
     ]
 
 
+@renamed_keyword("config")
 def diagnose_folder(
-    folder: str, *, seed: int, config: DiagnoseSettings | None = None
+    folder: str, *, seed: int, settings: DiagnoseSettings | None = None
 ) -> list[dict[str, Any]]:
     """Campaign task: diagnose an experiment folder with one seed and summarise the outcome.
 
@@ -545,7 +549,7 @@ def diagnose_folder(
         Experiment folder.
     seed : int
         Seed of the diagnosis.
-    config : DiagnoseSettings, optional
+    settings : DiagnoseSettings, optional
 
     Returns
     -------
@@ -563,7 +567,9 @@ def diagnose_folder(
     experiment = load_experiment(folder)
     table = load_jumps(folder, experiment)
     t0 = time.perf_counter()
-    d = diagnose(experiment, table, config, seed=seed, data_source=str(folder), log=lambda *a: None)
+    d = diagnose(
+        experiment, table, settings, seed=seed, data_source=str(folder), log=lambda *a: None
+    )
     rec = d.record
     fitted = [c for c in d.candidates if not c.screened_out]
     worst = min(fitted, key=lambda c: c.gain - 2.0 * c.gain_se, default=None)
@@ -608,13 +614,14 @@ def diagnose_folder(
 MISCALIBRATION: dict[str, float] = {"k_spring": 172.8, "m_motor": 0.02, "amplitude_mm": 0.4}
 
 
+@renamed_keyword("config")
 def diagnose_miscalibrated(
     calibration: str,
     *,
     seed: int,
     trials: int = 4,
     offsets_sd: Mapping[str, float] | None = None,
-    config: DiagnoseSettings | None = None,
+    settings: DiagnoseSettings | None = None,
     phi_sd: float = 0.0,
 ) -> list[dict[str, Any]]:
     """Campaign task: ``diagnose`` on null data from a robot known only to its calibration.
@@ -639,7 +646,7 @@ def diagnose_miscalibrated(
     offsets_sd : mapping of str to float, optional
         Fixed true values instead of draws: each key of :data:`MISCALIBRATION` this far
         from nominal [calibration sds] (the others drawn).
-    config : DiagnoseSettings, optional
+    settings : DiagnoseSettings, optional
         The rule and sampler settings (its ``calibration`` is replaced).
     phi_sd : float
         Each jump's bed's true phi scatters about the written one by this much (one bed
@@ -683,14 +690,14 @@ def diagnose_miscalibrated(
         seed=data_seed,
         design=design,
     )
-    config = dataclasses.replace(config or DiagnoseSettings(), calibration=calibration)
+    settings = dataclasses.replace(settings or DiagnoseSettings(), calibration=calibration)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         folder = write_lab_experiment(Path(tmp) / "lab", lab)
         experiment = load_experiment(folder)
         data = load_measurements(folder, experiment)
         d = diagnose(
-            experiment, data, config, seed=diag_seed, data_source=lab.source, log=lambda *a: None
+            experiment, data, settings, seed=diag_seed, data_source=lab.source, log=lambda *a: None
         )
     rec = d.record
     true_robot, nominal = lab.true_experiment.robot_values, lab.experiment.robot_values
@@ -1050,11 +1057,12 @@ def _paired_loo(fits: Mapping[str, Any], truth: str, rival: str) -> tuple[float,
     return d, se, max(float(loos[n]["max_pareto_k"]) for n in loos)
 
 
+@renamed_keyword("config")
 def design_tie_case(
     kind: str,
     index: int,
     rival: str,
-    config: DiagnoseSettings | None = None,
+    settings: DiagnoseSettings | None = None,
     *,
     seed: int,
     max_jumps: int = 40,
@@ -1079,7 +1087,7 @@ def design_tie_case(
         Replicate number within its kind (recorded).
     rival : str
         The rival term.
-    config : DiagnoseSettings, optional
+    settings : DiagnoseSettings, optional
         Rule and sampler settings (default ``DiagnoseSettings()``).
     seed : int
         The task's seed (the case, the fits, the design and the control are spawned
@@ -1102,7 +1110,7 @@ def design_tie_case(
 
     if kind not in LIBRARY_EFFECTS:
         raise ValueError(f"kind {kind!r}: a library term is needed as the truth")
-    cfg = config or DiagnoseSettings()
+    cfg = settings or DiagnoseSettings()
     case_seed, fit_seed, design_seed, noise_seed, random_seed = (
         int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(5)
     )
@@ -1168,7 +1176,7 @@ def design_tie_case(
         evidence={(kind, rival): (rows[0]["elpd_diff"], rows[0]["elpd_diff_se"])},
         candidates=grid,
         max_jumps=max_jumps,
-        config=cfg,
+        settings=cfg,
         rng=design_seed,
     )
     hyp = design.hypotheses.set_index(["truth", "rival"])

@@ -61,6 +61,7 @@ import pandas as pd
 from scipy.special import logsumexp
 
 from ._criticism import DiagnoseSettings
+from ._deprecated import renamed_keyword
 from ._likelihood import Observations
 from ._saved import SavedFit, as_saved_fit, load_fit
 from .commands import COMMAND_NAMES, COMMANDS
@@ -543,6 +544,7 @@ def law_draws(
     )
 
 
+@renamed_keyword("config")
 def design_jumps(
     fits: Mapping[str, object] | Sequence[object],
     *,
@@ -550,7 +552,7 @@ def design_jumps(
     candidates: pd.DataFrame | None = None,
     max_jumps: int = 60,
     n_draws: int = 800,
-    config: DiagnoseSettings | None = None,
+    settings: DiagnoseSettings | None = None,
     rng: np.random.Generator | int = 0,
 ) -> Design:
     """Propose the next jumps that best separate rival laws fitted to the same data.
@@ -572,7 +574,7 @@ def design_jumps(
         Budget: jumps added until the plan settles the tie, at most this many.
     n_draws : int
         Posterior draws per law (the same (chain, draw) indices in every run).
-    config : DiagnoseSettings, optional
+    settings : DiagnoseSettings, optional
         The rule's thresholds (``min_gain``, ``se_factor``; default ``DiagnoseSettings()``).
     rng : numpy.random.Generator or int
         Seed of the draws' selection.
@@ -586,7 +588,7 @@ def design_jumps(
     ValueError
         Fewer than two laws, fits of different data, or no setting every law predicts.
     """
-    cfg = config or DiagnoseSettings()
+    cfg = settings or DiagnoseSettings()
     if max_jumps < 1:
         raise ValueError(f"max_jumps = {max_jumps}: must be >= 1")
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
@@ -880,7 +882,7 @@ def design_from_diagnosis(
         candidates=candidates,
         max_jumps=max_jumps,
         n_draws=n_draws,
-        config=cfg,
+        settings=cfg,
         rng=rng,
     )
     return chosen, design

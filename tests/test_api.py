@@ -140,6 +140,35 @@ def test_former_names_of_the_settings_are_deprecated_aliases(
     assert old not in mod.__all__ and new in mod.__all__
 
 
+@pytest.mark.parametrize(
+    ("function", "old"),
+    [
+        ("simulate", "options"),
+        ("simulate_rows", "options"),
+        ("simulate_table", "options"),
+        ("simulate_trajectory", "options"),
+        ("simulate_frames", "options"),
+        ("simulate_frames_rows", "options"),
+        ("make_jumps", "options"),
+        ("fit", "config"),
+        ("diagnose", "config"),
+        ("run_sbc", "config"),
+    ],
+)
+def test_former_settings_keywords_are_deprecated(function: str, old: str) -> None:
+    """Every ``*Settings`` argument is called ``settings``; the former keyword still reaches
+    it, with a warning at the caller's line, and both at once are refused."""
+    func = getattr(gb, function)
+    with pytest.raises(TypeError, match=f"got both {old}= and settings="):
+        func(**{old: None, "settings": None})
+    with pytest.warns(
+        DeprecationWarning, match=rf"{function}\({old}=\.\.\.\) is deprecated"
+    ) as rec:
+        with pytest.raises(Exception):  # noqa: B017 (no arguments: fails after the warning)
+            func(**{old: None})
+    assert rec[0].filename == __file__
+
+
 #: The README's "API" section (granbayes.README_API in the report of this change); run as
 #: written on a small SYNTHETIC folder "my-lab" in the current directory.
 README_API = """

@@ -79,7 +79,7 @@ PROGRAMS = [build_command(name) for name in COMMAND_NAMES]
 
 def flight_end(command: str, params: dict, options: SolverSettings | None = None) -> float:
     """Time [s] of the touchdown that ends a jump (the last recorded state)."""
-    return float(simulate_trajectory(command, PHI, params, options=options).data["t_s"].iloc[-1])
+    return float(simulate_trajectory(command, PHI, params, settings=options).data["t_s"].iloc[-1])
 
 
 # ----------------------------------------------------------------------------------------
@@ -97,14 +97,14 @@ def test_frames_at_recorded_times_are_the_recorded_states(command: str) -> None:
     0.01 mm and 2 mm/s.
     """
     options = SolverSettings(max_step=RECORD_STEP)
-    rec = simulate_trajectory(command, PHI, LAW, options=options).data
+    rec = simulate_trajectory(command, PHI, LAW, settings=options).data
     want = {
         "x_foot_mm": rec["x_foot_mm"].to_numpy(),
         "x_rod_mm": rec["x_rod_mm"].to_numpy() - rec["x_rod_mm"].iloc[0],
         "v_foot_mm_s": 1e3 * rec["v_foot_m_s"].to_numpy(),
         "v_rod_mm_s": 1e3 * rec["v_rod_m_s"].to_numpy(),
     }
-    tracked = simulate_frames(command, PHI, LAW, rec["t_s"], options=options)
+    tracked = simulate_frames(command, PHI, LAW, rec["t_s"], settings=options)
     default = simulate_frames(command, PHI, LAW, rec["t_s"])
     assert tracked.status == Status.OK and default.status == Status.OK
     for column, expect in want.items():
@@ -124,14 +124,14 @@ def test_frames_converge_with_the_tolerance(command: str) -> None:
     it is at most 0.05 mm and 5 mm/s (velocities reach 3 m/s).
     """
     frames = np.arange(-10, 1500) / 2000.0
-    ref = simulate_frames(command, PHI, LAW, frames, options=TIGHT).data
+    ref = simulate_frames(command, PHI, LAW, frames, settings=TIGHT).data
     for closed in (True, False):
         errors = []
         for rtol in (1e-5, 1e-7, 1e-9):
             options = SolverSettings(
                 rtol=rtol, atol_position=1e-2 * rtol, atol_velocity=rtol, closed_form=closed
             )
-            got = simulate_frames(command, PHI, LAW, frames, options=options).data
+            got = simulate_frames(command, PHI, LAW, frames, settings=options).data
             errors.append((max_error(got, ref, POSITIONS), max_error(got, ref, VELOCITIES)))
         x_err, v_err = np.array(errors).T
         assert x_err[0] < 0.05 and v_err[0] < 5.0, errors
@@ -159,7 +159,7 @@ def test_dense_output_of_dormand_prince_steps_is_fifth_order(command: str) -> No
         PHI,
         LAW,
         frames,
-        options=SolverSettings(
+        settings=SolverSettings(
             rtol=1e-13, atol_position=1e-15, atol_velocity=1e-13, closed_form=False
         ),
     ).data
@@ -168,7 +168,7 @@ def test_dense_output_of_dormand_prince_steps_is_fifth_order(command: str) -> No
         loose = SolverSettings(
             rtol=1e6, atol_position=1e6, atol_velocity=1e6, max_step=h, closed_form=False
         )
-        got = simulate_frames(command, PHI, LAW, frames, options=loose).data
+        got = simulate_frames(command, PHI, LAW, frames, settings=loose).data
         x_err.append(max_error(got, ref, POSITIONS))
         v_err.append(max_error(got, ref, VELOCITIES))
     assert x_err[0] / x_err[1] > 2**4.5 and x_err[1] / x_err[2] > 2**4.5, x_err
@@ -283,8 +283,8 @@ def test_frames_after_the_window_continue_the_flight() -> None:
     options = SolverSettings(window_after=0.02)
     t_end = build_command("single").t_end
     frames = np.linspace(t_end, t_end + 0.4, 401)
-    jump = simulate_frames("single", PHI, {"k": 3000.0, "r_unload": 1.0}, frames, options=options)
-    plain = gb.simulate("single", PHI, {"k": 3000.0, "r_unload": 1.0}, options=options)
+    jump = simulate_frames("single", PHI, {"k": 3000.0, "r_unload": 1.0}, frames, settings=options)
+    plain = gb.simulate("single", PHI, {"k": 3000.0, "r_unload": 1.0}, settings=options)
     assert jump.height_mm == plain.height_mm[0]
     foot = jump.data["x_foot_mm"].to_numpy()
     assert foot.max() > jump.height_mm + 1.0
@@ -307,7 +307,7 @@ def test_failed_jumps_give_nan_positions_and_their_status() -> None:
         assert res.status[i] == Status.OK
         assert np.array_equal(res.frames_of(i), alone.frames_flat)
     starved = simulate_frames_rows(
-        rows, PROGRAMS, index, frames, offsets, options=SolverSettings(max_steps=5)
+        rows, PROGRAMS, index, frames, offsets, settings=SolverSettings(max_steps=5)
     )
     assert (starved.status == Status.STEP_LIMIT)[[0, 2, 3, 4]].all()
     assert np.isnan(starved.frames_flat).all() and np.isnan(starved.height_mm).all()
@@ -429,7 +429,7 @@ def test_velocities_are_the_derivative_of_the_positions() -> None:
         for closed in (True, False):
             for settings in (SolverSettings(), SolverSettings.converged()):
                 options = dataclasses.replace(settings, closed_form=closed)
-                data = simulate_frames(command, PHI, LAW, frames, options=options).data
+                data = simulate_frames(command, PHI, LAW, frames, settings=options).data
                 x = data[POSITIONS].to_numpy().reshape(3, -1, 2)
                 v = data[VELOCITIES].to_numpy().reshape(3, -1, 2)[1]
                 np.testing.assert_allclose((x[2] - x[0]) / (2 * eps), v, rtol=0, atol=1e-3)

@@ -104,7 +104,7 @@ def check_against_oracle(
         (SolverSettings(), DEFAULT_MM, DEFAULT_MM_S),
     ):
         options = SolverSettings(**{**options.__dict__, "window_after": window_after})
-        jump = simulate_frames(command, PHI, law, frames, experiment=experiment, options=options)
+        jump = simulate_frames(command, PHI, law, frames, experiment=experiment, settings=options)
         assert jump.height_mm == pytest.approx(oracle.height_mm, abs=tol)
         for column, want, atol in oracle_columns(oracle, tol, tol_v):
             np.testing.assert_allclose(jump.data[column], want, rtol=0, atol=atol, err_msg=column)
@@ -164,7 +164,7 @@ def test_frames_converge_to_the_oracle_as_the_tolerance_tightens(command: str) -
             options = SolverSettings(
                 rtol=rtol, atol_position=1e-2 * rtol, atol_velocity=rtol, closed_form=closed
             )
-            data = simulate_frames(command, PHI, LAWS["all"], frames, options=options).data
+            data = simulate_frames(command, PHI, LAWS["all"], frames, settings=options).data
             err = [float(np.abs(data[column] - values).max()) for column, values, _ in want]
             x_err.append(max(err[:2]))
             v_err.append(max(err[2:]))

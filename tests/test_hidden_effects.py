@@ -297,7 +297,7 @@ def test_the_designed_jumps_settle_the_drag_viscous_tie() -> None:
         evidence={("drag", "viscous"): (tie["elpd_diff"], tie["elpd_diff_se"])},
         candidates=grid,
         max_jumps=60,
-        config=CONFIG,
+        settings=CONFIG,
         rng=0,
     )
     print(plan.plan.to_string(), plan.hypotheses.round(2).to_string(), sep="\n")

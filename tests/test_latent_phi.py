@@ -204,7 +204,7 @@ def test_without_a_latent_phi_the_model_is_unchanged_bit_for_bit(loaded) -> None
     assert uncertain.phi_sd == PHI_SD
     exact = uncertain.replace(phi_sd=0.0)
     rng = np.random.default_rng(3)
-    for mode, law in (("quadratic", "quadratic"), ("per_phi", "shared")):
+    for mode, law in (("quadratic", "quadratic"), ("per_phi", "per_phi")):
         ref = _make_model(data, exact, FitSettings(phi_mode=mode), default_priors(), law)
         u = ref.sample_prior(rng, 6)
         for config in (FitSettings(phi_mode=mode, bed_phi="measured"), FitSettings(phi_mode=mode)):

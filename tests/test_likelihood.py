@@ -197,7 +197,7 @@ def test_outside_prior_gives_minus_inf_row(obs: Observations, rng: np.random.Gen
 
 def test_simulation_failure_gives_minus_inf(obs: Observations, rng: np.random.Generator) -> None:
     """A step budget of 20 makes every jump fail: ``-inf`` log-prob and rows, no exception."""
-    model = JumpModel(obs, EXPERIMENT, ["depth"], options=SolverSettings(max_steps=20))
+    model = JumpModel(obs, EXPERIMENT, ["depth"], settings=SolverSettings(max_steps=20))
     u = model.sample_prior(rng, 3)
     assert np.all(np.isfinite(model.log_prior(u)))
     _, ok = model.predict(u)

@@ -74,7 +74,7 @@ def simulated_default(reference: pd.DataFrame) -> pd.DataFrame:
 @pytest.fixture(scope="module")
 def simulated_converged(reference: pd.DataFrame) -> pd.DataFrame:
     """The reference table simulated with converged solver settings."""
-    return simulate_table(reference.drop(columns="height_mm"), options=SolverSettings.converged())
+    return simulate_table(reference.drop(columns="height_mm"), settings=SolverSettings.converged())
 
 
 def _check_row(

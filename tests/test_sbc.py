@@ -265,7 +265,7 @@ def test_same_seed_same_ranks_with_one_or_two_workers_and_foreign_resume_refused
             experiment,
             jumps,
             tmp_path / f"w{workers}",
-            config=FAST_CONFIG,
+            settings=FAST_CONFIG,
             n_replicates=2,
             seed=9,
             n_rank_draws=19,

@@ -77,7 +77,7 @@ def _heights(
     experiment = Experiment().replace(**changes)
     default = granbayes.simulate(command, phi, params, experiment=experiment)
     converged = granbayes.simulate(
-        command, phi, params, experiment=experiment, options=SolverSettings.converged()
+        command, phi, params, experiment=experiment, settings=SolverSettings.converged()
     )
     assert default.ok.all() and converged.ok.all()
     reference = simulate_height_scipy(command, phi, params, experiment)

@@ -88,7 +88,7 @@ def height(
     phi: float = PHI,
 ) -> float:
     """Height [mm] of one jump, asserting that the integration succeeded."""
-    res = simulate(command, phi, params, options=options, experiment=experiment)
+    res = simulate(command, phi, params, settings=options, experiment=experiment)
     assert res.status[0] == Status.OK, res.status_labels[0]
     return float(res.height_mm[0])
 
@@ -129,7 +129,7 @@ def trajectory(
     The record ends at the touchdown after the command (``x_f`` falls through 0) or
     ``window_after`` after the command; anything else means the record was truncated.
     """
-    traj = simulate_trajectory(command, phi, params, experiment=experiment, options=options)
+    traj = simulate_trajectory(command, phi, params, experiment=experiment, settings=options)
     assert traj.status == Status.OK, traj.status.label
     t = traj.data["t_s"].to_numpy()
     xf = traj.data["x_foot_mm"].to_numpy()
@@ -418,7 +418,7 @@ def test_default_tolerances_meet_contract_on_random_realistic_jumps(command: str
     """
     phi, params = random_parameters(400, seed=0)
     default = simulate(command, phi, params)
-    exact = simulate(command, phi, params, options=CONVERGED)
+    exact = simulate(command, phi, params, settings=CONVERGED)
     assert np.all(default.ok) and np.all(exact.ok)
     error = np.abs(default.height_mm - exact.height_mm)
     worst = int(np.argmax(error))
@@ -840,7 +840,7 @@ def test_carried_grains_weight_is_the_only_energy_source_besides_the_actuator() 
     params = {"k": 1000.0, "kappa": 2.0, "r_unload": 1.0}
     phi = 0.6
     traj = simulate_trajectory(
-        "delayed_stutter", phi, params, experiment=UNDAMPED, options=CONVERGED, max_step=2e-5
+        "delayed_stutter", phi, params, experiment=UNDAMPED, settings=CONVERGED, max_step=2e-5
     )
     assert traj.status == Status.OK
     robot = UNDAMPED.robot
@@ -981,11 +981,11 @@ def test_bad_rows_give_bad_input_status_and_nan_without_raising() -> None:
 def test_step_budget_exhaustion_gives_step_limit_status() -> None:
     """max_steps = 20 (a jump needs ~50) gives STEP_LIMIT and NaN, in batches and trajectories."""
     options = SolverSettings(max_steps=20)
-    res = simulate("single", [0.6, 0.6], {"k": [3000.0, 5000.0]}, options=options)
+    res = simulate("single", [0.6, 0.6], {"k": [3000.0, 5000.0]}, settings=options)
     assert np.all(res.status == Status.STEP_LIMIT)
     assert np.all(np.isnan(res.height_mm))
     assert np.all(res.n_steps == 20)
-    traj = simulate_trajectory("single", 0.6, {"k": 3000.0}, options=options)
+    traj = simulate_trajectory("single", 0.6, {"k": 3000.0}, settings=options)
     assert traj.status == Status.STEP_LIMIT and math.isnan(traj.height_mm)
 
 

@@ -69,14 +69,14 @@ class FitBank:
         self,
         experiment: Experiment,
         table: pd.DataFrame | Measurements,
-        config: DiagnoseSettings,
+        settings: DiagnoseSettings,
         priors: Mapping[str, Prior] | None,
         seed: int,
         data_source: str,
         log: Callable[..., None],
         progress: Callable[[str, ProgressInfo], None] | None = None,
     ) -> None:
-        self.experiment, self.config = experiment, config
+        self.experiment, self.config = experiment, settings
         self.data = _as_measurements(table)
         #: One row per unit of leave-one-out: ``kind``, ``unit``, ``phi``, ``command``.
         self.units = self.data.units

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from .. import stats
+from .._deprecated import renamed_keyword
 from .._experiment import Experiment
 from .._fitting import FitResult
 from .._priors import Prior
@@ -211,10 +212,11 @@ def _versus_chosen(
     return out
 
 
+@renamed_keyword("config")
 def diagnose(
     experiment: Experiment,
     table: pd.DataFrame,
-    config: DiagnoseSettings | None = None,
+    settings: DiagnoseSettings | None = None,
     *,
     seed: int = 0,
     priors: Mapping[str, Prior] | None = None,
@@ -230,7 +232,7 @@ def diagnose(
         Robot, command defaults and ``phi_c``.
     table : pandas.DataFrame
         Validated jumps (:func:`granbayes.load_jumps`).
-    config : DiagnoseSettings, optional
+    settings : DiagnoseSettings, optional
         Baseline, candidates, MCMC settings and the selection rule.
     seed : int
         Master seed (recorded).
@@ -248,7 +250,7 @@ def diagnose(
     -------
     Diagnosis
     """
-    cfg = config or DiagnoseSettings()
+    cfg = settings or DiagnoseSettings()
     if isinstance(table, pd.DataFrame):
         table = table.reset_index(drop=True)
     bank = FitBank(experiment, table, cfg, priors, seed, data_source, log, progress)

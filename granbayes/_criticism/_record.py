@@ -357,13 +357,13 @@ class RuleRecord:
 
     @classmethod
     def of(
-        cls, cfg: DiagnoseSettings, z_thresholds: Mapping[str, float], cells: pd.DataFrame
+        cls, settings: DiagnoseSettings, z_thresholds: Mapping[str, float], cells: pd.DataFrame
     ) -> RuleRecord:
         """The record of the rule ``cfg`` applied with threshold ``z_threshold``.
 
         Parameters
         ----------
-        cfg : DiagnoseSettings
+        settings : DiagnoseSettings
         z_thresholds : mapping of str to float
             The threshold of each kind's cells.
         cells : pandas.DataFrame
@@ -385,29 +385,29 @@ class RuleRecord:
             else f"{by_kind}; Bonferroni over all kinds"
         )
         text = (
-            f"add the best converged candidate when its ELPD gain > {cfg.min_gain:g} "
-            f"nats and > {cfg.se_factor:g} SE, and the current law has a misfit cell "
-            f"({threshold_text}: family-wise false-alarm rate {cfg.family_alpha:g} "
-            f"over {n_cells} cells) or the gain exceeds {cfg.strong_gain:g} nats; "
-            f"at most {cfg.max_added} terms; misfit the selected law leaves gives "
+            f"add the best converged candidate when its ELPD gain > {settings.min_gain:g} "
+            f"nats and > {settings.se_factor:g} SE, and the current law has a misfit cell "
+            f"({threshold_text}: family-wise false-alarm rate {settings.family_alpha:g} "
+            f"over {n_cells} cells) or the gain exceeds {settings.strong_gain:g} nats; "
+            f"at most {settings.max_added} terms; misfit the selected law leaves gives "
             "'misfit_remains'; a fitted candidate the chosen one does not beat by the "
-            f"same margin (> {cfg.min_gain:g} nats and > {cfg.se_factor:g} SE of the "
+            f"same margin (> {settings.min_gain:g} nats and > {settings.se_factor:g} SE of the "
             "paired difference) is reported as indistinguishable from it"
         )
-        if cfg.screen:
+        if settings.screen:
             text += (
                 "; a candidate is fitted only if its screened log-likelihood gain reaches "
-                f"{cfg.min_gain:g} nats and the best ELPD gain fitted before it less "
-                f"{cfg.min_gain + cfg.screen_margin:g}"
+                f"{settings.min_gain:g} nats and the best ELPD gain fitted before it less "
+                f"{settings.min_gain + settings.screen_margin:g}"
             )
         return cls(
-            min_gain=cfg.min_gain,
-            se_factor=cfg.se_factor,
-            strong_gain=cfg.strong_gain,
-            family_alpha=cfg.family_alpha,
+            min_gain=settings.min_gain,
+            se_factor=settings.se_factor,
+            strong_gain=settings.strong_gain,
+            family_alpha=settings.family_alpha,
             z_threshold=z_threshold,
-            screen=cfg.screen,
-            screen_margin=cfg.screen_margin,
+            screen=settings.screen,
+            screen_margin=settings.screen_margin,
             text=text,
             z_thresholds=dict(z_thresholds),
         )

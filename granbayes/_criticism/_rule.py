@@ -211,7 +211,7 @@ class Candidate:
 
 
 def decide(
-    candidates: Sequence[Candidate], n_misfit: int, config: DiagnoseSettings
+    candidates: Sequence[Candidate], n_misfit: int, settings: DiagnoseSettings
 ) -> Candidate | None:
     """The selection rule: the candidate to add this round, or ``None``.
 
@@ -225,7 +225,7 @@ def decide(
         This round's scored candidates.
     n_misfit : int
         Misfit cells of the current law.
-    config : DiagnoseSettings
+    settings : DiagnoseSettings
         The thresholds.
 
     Returns
@@ -236,11 +236,11 @@ def decide(
     if not eligible:
         return None
     best = max(eligible, key=lambda c: c.gain)
-    clear = best.gain > config.min_gain and best.gain > config.se_factor * best.gain_se
-    return best if clear and (n_misfit > 0 or best.gain > config.strong_gain) else None
+    clear = best.gain > settings.min_gain and best.gain > settings.se_factor * best.gain_se
+    return best if clear and (n_misfit > 0 or best.gain > settings.strong_gain) else None
 
 
-def distinguished(diff: float, se: float, config: DiagnoseSettings) -> bool:
+def distinguished(diff: float, se: float, settings: DiagnoseSettings) -> bool:
     """Whether an ELPD difference [nats] is clear by the rule's own standard.
 
     The same standard a term must meet to be added over the current law: more than
@@ -253,17 +253,17 @@ def distinguished(diff: float, se: float, config: DiagnoseSettings) -> bool:
     ----------
     diff, se : float
         The ELPD difference and its standard error [nats].
-    config : DiagnoseSettings
+    settings : DiagnoseSettings
         The thresholds.
 
     Returns
     -------
     bool
     """
-    return bool(diff > config.min_gain and diff > config.se_factor * se)
+    return bool(diff > settings.min_gain and diff > settings.se_factor * se)
 
 
-def rivals(candidates: Sequence[Candidate], config: DiagnoseSettings) -> list[Candidate]:
+def rivals(candidates: Sequence[Candidate], settings: DiagnoseSettings) -> list[Candidate]:
     """Candidates of a round the chosen one is not :func:`distinguished` from.
 
     A verdict that names a term is a claim about the physics; where the data predict as
@@ -277,7 +277,7 @@ def rivals(candidates: Sequence[Candidate], config: DiagnoseSettings) -> list[Ca
     ----------
     candidates : sequence of Candidate
         A round's candidates, compared with its chosen one (``vs_selected`` set).
-    config : DiagnoseSettings
+    settings : DiagnoseSettings
         The thresholds.
 
     Returns
@@ -289,7 +289,7 @@ def rivals(candidates: Sequence[Candidate], config: DiagnoseSettings) -> list[Ca
         c
         for c in candidates
         if math.isfinite(c.vs_selected)
-        and not distinguished(c.vs_selected, c.vs_selected_se, config)
+        and not distinguished(c.vs_selected, c.vs_selected_se, settings)
     ]
     return sorted(out, key=lambda c: c.vs_selected)
 

@@ -10,7 +10,7 @@ that walker's log-probability ``-inf``; nothing raises.
 
 Parametrisations of the force law across volume fractions (``phi_mode``):
 
-``"shared"``
+``"per_phi"``
     one value per parameter for all measurements of the model (used per volume fraction:
     one force law for all five commands, the thesis's question);
 ``"quadratic"``
@@ -54,7 +54,7 @@ __all__ = ["CALIBRATED_KEYS", "Evaluation", "JumpModel", "PhiMode", "evaluate_mo
 CALIBRATED_KEYS: tuple[str, ...] = (*ROBOT_FIELDS, "amplitude_mm")
 
 #: Parametrisation of a model across volume fractions (module docstring).
-PhiMode = Literal["shared", "quadratic"]
+PhiMode = Literal["per_phi", "quadratic"]
 
 
 class JumpModel:
@@ -73,7 +73,7 @@ class JumpModel:
     priors : mapping of str to Prior, optional
         Priors per parameter (defaults: :func:`granbayes._priors.default_priors`; a block's
         own parameters fall back on the block's defaults).
-    phi_mode : {"shared", "quadratic"}
+    phi_mode : {"per_phi", "quadratic"}
         Parametrisation across volume fractions (module docstring).
     noise : {"normal", "student_t"}
         Noise family of the heights (when ``observations`` are heights).
@@ -103,17 +103,17 @@ class JumpModel:
         terms: Sequence[str],
         *,
         priors: Mapping[str, Prior] | None = None,
-        phi_mode: PhiMode = "shared",
+        phi_mode: PhiMode = "per_phi",
         noise: NoiseFamily = "normal",
         nu: float = 4.0,
         sigma_mode: SigmaMode = "per_phi",
         fixed: Mapping[str, float] | None = None,
-        options: SolverSettings | None = None,
+        settings: SolverSettings | None = None,
         n_threads: int | None = None,
         calibrated: Mapping[str, Prior] | None = None,
     ) -> None:
-        if phi_mode not in ("shared", "quadratic"):
-            raise ValueError(f"phi_mode must be 'shared' or 'quadratic', got {phi_mode!r}")
+        if phi_mode not in ("per_phi", "quadratic"):
+            raise ValueError(f"phi_mode must be 'per_phi' or 'quadratic', got {phi_mode!r}")
         if isinstance(observations, Observations):
             blocks: list[Block] = [
                 HeightBlock(observations, noise=noise, nu=nu, sigma_mode=sigma_mode)
@@ -131,7 +131,7 @@ class JumpModel:
         self.priors = dict(priors if priors is not None else default_priors())
         self.phi_mode = phi_mode
         self.fixed = dict(fixed or {})
-        self.options = options or SolverSettings()
+        self.options = settings or SolverSettings()
         self.n_threads = n_threads
         self.parameters = tuple(p.name for t in self.terms for p in TERMS[t].parameters)
         self._phis = np.unique(np.concatenate([b.phis for b in blocks]))
@@ -196,7 +196,7 @@ class JumpModel:
         span = float(np.max(np.abs(self._x_phis))) if self._x_phis.size else 0.0
         for name in self.parameters:
             prior = self.priors[name]
-            if self.phi_mode == "shared":
+            if self.phi_mode == "per_phi":
                 coords.append(Coordinate(name, name, prior))
                 continue
             coords.append(Coordinate(f"{name}:c0", name, prior, order=0))
@@ -305,7 +305,7 @@ class JumpModel:
         """
         u = np.atleast_2d(u)
         lp = self.log_prior(u)
-        if self.phi_mode == "shared":
+        if self.phi_mode == "per_phi":
             for j, c in enumerate(self._coords):
                 lp = lp - c.prior.log_jacobian(u[:, j])
         return lp
@@ -413,7 +413,7 @@ class JumpModel:
         """
         u = np.atleast_2d(u)
         n, m = u.shape[0], len(phi)
-        x_eval = np.zeros(1) if self.phi_mode == "shared" else phi - self.experiment.phi_c
+        x_eval = np.zeros(1) if self.phi_mode == "per_phi" else phi - self.experiment.phi_c
         values = {
             name: self.priors[name].to_value(v) for name, v in self._parameter_u(u, x_eval).items()
         }
@@ -481,7 +481,7 @@ class JumpModel:
             rows,
             obs.programs,
             index,
-            options=self.options,
+            settings=self.options,
             n_threads=self.n_threads,
             amplitude_scale=None if scale is None else np.repeat(scale, len(obs.config_phi)),
         )
@@ -813,7 +813,7 @@ def _simulate(jobs: Sequence[tuple[JumpModel, np.ndarray, Sequence]]) -> list[li
                 np.concatenate(index),
                 np.concatenate(times),
                 np.concatenate([[0], np.cumsum(np.concatenate(counts))]),
-                options=options,
+                settings=options,
                 n_threads=n_threads,
                 amplitude_scale=scale,
             )
@@ -823,7 +823,7 @@ def _simulate(jobs: Sequence[tuple[JumpModel, np.ndarray, Sequence]]) -> list[li
                 np.concatenate(rows),
                 programs,
                 np.concatenate(index),
-                options=options,
+                settings=options,
                 n_threads=n_threads,
                 amplitude_scale=scale,
             )
