@@ -176,8 +176,8 @@ import granbayes as gb
 
 exp = gb.load_experiment("my-lab")                   # robot, command settings, phi_c
 jumps = gb.load_jumps("my-lab", exp)                 # one validated row per jump
-config = gb.FitSettings(terms=("depth", "drag"), sampler=gb.SamplerSettings(n_ensembles=2))
-result = gb.fit(exp, jumps, config, seed=1)          # until converged (result.converged)
+settings = gb.FitSettings(terms=("depth", "drag"), sampler=gb.SamplerSettings(n_ensembles=2))
+result = gb.fit(exp, jumps, settings, seed=1)        # until converged (result.converged)
 result.diagnostics()                                 # tau, R-hat, ESS per run
 result.save("posterior.nc")                          # the DataTree, as netCDF
 
