@@ -1267,8 +1267,8 @@ def _run_predict(args: argparse.Namespace) -> int:
     if args.json:
         record = result.to_json() | {
             "posterior": str(saved.source),
-            "terms": list(saved.config.terms),
-            "phi_mode": saved.config.phi_mode,
+            "terms": list(saved.settings.terms),
+            "phi_mode": saved.settings.phi_mode,
             "seed": args.seed,
             "granbayes_version": __version__,
         }
@@ -1276,8 +1276,8 @@ def _run_predict(args: argparse.Namespace) -> int:
         return EXIT_OK
     pct = f"{args.ci_prob:.0%}"
     print(
-        f"Predicted jump heights [mm] from {saved.source} ({' + '.join(saved.config.terms)}, "
-        f"{saved.config.phi_mode}): median [{pct} interval] of the simulated height and of a "
+        f"Predicted jump heights [mm] from {saved.source} ({' + '.join(saved.settings.terms)}, "
+        f"{saved.settings.phi_mode}): median [{pct} interval] of the simulated height and of a "
         "new jump (plus the fitted scatter)"
     )
     for r in result.table.itertuples():

@@ -62,7 +62,7 @@ import xarray as xr
 
 from . import _datatree as gdt
 from . import stats
-from ._deprecated import alias_getattr, renamed_keyword
+from ._deprecated import alias_getattr, renamed_keyword, warn_alias
 from ._experiment import Experiment
 from ._likelihood import (
     CALIBRATED_KEYS,
@@ -273,7 +273,8 @@ class FitResult:
         provenance attributes.
     parts : list of FitPart
         The ensemble runs (one per volume fraction, or one).
-    config : FitSettings
+    settings : FitSettings
+        The settings of the fit (``config``: a deprecated alias).
     seed : int
     warnings : list of str
         Convergence problems, in words.
@@ -281,9 +282,15 @@ class FitResult:
 
     datatree: xr.DataTree
     parts: list[FitPart]
-    config: FitSettings
+    settings: FitSettings
     seed: int
     warnings: list[str]
+
+    @property
+    def config(self) -> FitSettings:
+        """Deprecated alias of :attr:`settings`."""
+        warn_alias(type(self).__name__, "config", "settings")
+        return self.settings
 
     @property
     def converged(self) -> bool:
@@ -1540,15 +1547,15 @@ def compare_commands(
             DeprecationWarning,
             stacklevel=2,
         )
-    if shared.config.phi_mode != "per_phi":
+    if shared.settings.phi_mode != "per_phi":
         raise ValueError("compare_commands needs a per_phi fit")
     priors = dict(priors if priors is not None else default_priors())
     table = table.reset_index(drop=True)
     table = table.assign(jump=np.arange(len(table)))
     config = dataclasses.replace(
-        shared.config,
+        shared.settings,
         sampler=dataclasses.replace(
-            shared.config.sampler, max_steps=min(max_steps, shared.config.sampler.max_steps)
+            shared.settings.sampler, max_steps=min(max_steps, shared.settings.sampler.max_steps)
         ),
     )
     rows = []

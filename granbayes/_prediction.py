@@ -265,7 +265,7 @@ def predict(
     grid = _settings_grid(saved, command, phi, settings)
     phis = grid["phi"].to_numpy(float)
     labels = saved.runs_of(phis)
-    if saved.config.phi_mode == "per_phi":  # snap to the fitted values
+    if saved.settings.phi_mode == "per_phi":  # snap to the fitted values
         grid["phi"] = [saved.phis[np.argmin(np.abs(saved.phis - p))] for p in phis]
         phis = grid["phi"].to_numpy(float)
     models = saved.models()
@@ -305,7 +305,7 @@ def predict(
             )
         else:
             rep[:, cols] = model.add_noise(sim[:, cols], sigma, rng)
-    if saved.config.phi_mode == "quadratic":
+    if saved.settings.phi_mode == "quadratic":
         lo, hi = saved.phis.min(), saved.phis.max()
         outside = sorted({p for p in phis if p < lo - PHI_TOLERANCE or p > hi + PHI_TOLERANCE})
         if outside:

@@ -30,6 +30,7 @@ import xarray as xr
 
 from . import _datatree as gdt
 from . import stats
+from ._deprecated import warn_alias
 from ._errors import InputError
 from ._experiment import Experiment, Robot
 from ._fitting import FitSettings, part_models
@@ -68,8 +69,9 @@ class SavedFit:
         The fit's DataTree: ``posterior`` (force parameters [SI] and ``sigma_mm`` [mm] over
         ``phi``), ``log_likelihood``, ``posterior_predictive``, ``observed_data``,
         ``sample_stats`` and, if drawn, ``prior``, ``prior_predictive``, ``log_prior``.
-    config : FitSettings
-        Terms, ``phi_mode``, noise family and sampler settings of the fit.
+    settings : FitSettings
+        Terms, ``phi_mode``, noise family and sampler settings of the fit (``config``: a
+        deprecated alias).
     experiment : Experiment
         Robot, default command settings and ``phi_c`` the fit used.
     priors : dict of str to Prior
@@ -83,13 +85,19 @@ class SavedFit:
     """
 
     datatree: xr.DataTree
-    config: FitSettings
+    settings: FitSettings
     experiment: Experiment
     priors: dict[str, Prior]
     seed: int
     warnings: tuple[str, ...] = ()
     source: Path | None = None
     _models: dict[str, JumpModel] = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def config(self) -> FitSettings:
+        """Deprecated alias of :attr:`settings`."""
+        warn_alias(type(self).__name__, "config", "settings")
+        return self.settings
 
     # ------------------------------------------------------------------------------------
     @classmethod
@@ -230,7 +238,7 @@ class SavedFit:
             saved by an incompatible granbayes version).
         """
         if not self._models:
-            specs = part_models(self.experiment, self.measurements(), self.config, self.priors)
+            specs = part_models(self.experiment, self.measurements(), self.settings, self.priors)
             runs = _json_attr(self.datatree, "runs")
             for (label, model, _), run in zip(specs, runs, strict=False):
                 if label != run["label"] or list(model.coordinate_names) != run["coordinates"]:
@@ -291,7 +299,7 @@ class SavedFit:
             were).
         """
         labels = list(self.models())
-        if self.config.phi_mode == "quadratic":
+        if self.settings.phi_mode == "quadratic":
             return [labels[0]] * len(phis)
         fitted = self.phis
         out = []
@@ -366,7 +374,7 @@ def load_fit(path: str | Path) -> SavedFit:
     --------
     >>> import granbayes as gb
     >>> saved = gb.load_fit("fit/posterior.nc")  # doctest: +SKIP
-    >>> saved.config.terms, saved.phis  # doctest: +SKIP
+    >>> saved.settings.terms, saved.phis  # doctest: +SKIP
     """
     path = Path(path)
     if path.is_dir():

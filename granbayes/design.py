@@ -254,7 +254,7 @@ class Design:
 
 
 def _law_name(fit: SavedFit) -> str:
-    return "+".join(fit.config.terms)
+    return "+".join(fit.settings.terms)
 
 
 @dataclass(frozen=True)

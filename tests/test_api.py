@@ -169,6 +169,15 @@ def test_former_settings_keywords_are_deprecated(function: str, old: str) -> Non
     assert rec[0].filename == __file__
 
 
+def test_the_config_attribute_is_a_deprecated_alias_of_settings() -> None:
+    """``FitResult.config`` and ``SavedFit.config`` still read the fit's settings, warned."""
+    from granbayes.testing import fake_fit
+
+    saved = gb.SavedFit.from_datatree(fake_fit(seed=1))
+    with pytest.warns(DeprecationWarning, match="SavedFit.config is a deprecated alias"):
+        assert saved.config is saved.settings
+
+
 #: The README's "API" section (granbayes.README_API in the report of this change); run as
 #: written on a small SYNTHETIC folder "my-lab" in the current directory.
 README_API = """
@@ -181,7 +190,7 @@ result = gb.fit(exp, jumps, settings, seed=1)        # until converged (result.c
 result.diagnostics()                                 # tau, R-hat, ESS per run
 result.save("posterior.nc")                          # the DataTree, as netCDF
 
-saved = gb.load_fit("posterior.nc")                  # SavedFit: datatree, config, priors, ...
+saved = gb.load_fit("posterior.nc")                  # SavedFit: datatree, settings, priors, ...
 saved.datatree.posterior["k"]                        # k [N/m] over (chain, draw, phi)
 gb.residual_table(saved.datatree)                    # misfit per command x phi x setting
 pred = gb.predict(saved, "stutter", 0.612, freq_hz=[8, 12], rng=1)
@@ -224,7 +233,7 @@ def test_load_fit_gives_back_the_fit(per_phi: tuple[gb.FitResult, Path]) -> None
     result, out = per_phi
     saved = gb.load_fit(out / "posterior.nc")
     assert gb.load_fit(out).source == out / "posterior.nc"  # the folder works too
-    assert saved.config == result.config
+    assert saved.settings == result.settings
     assert saved.seed == result.seed == 3
     assert saved.converged == result.converged
     assert saved.parameters == ("k",)

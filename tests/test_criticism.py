@@ -812,7 +812,7 @@ def test_drag_and_viscous_compared_paired_and_ties_reported(tmp_path: Path) -> N
     if expected:
         tie, fits = load_tie(tmp_path)
         assert tie["laws"] == (("depth", chosen), ("depth", other.term))
-        assert {n: f.config.terms for n, f in fits.items()} == {
+        assert {n: f.settings.terms for n, f in fits.items()} == {
             "depth+drag": ("depth", "drag"),
             "depth+viscous": ("depth", "viscous"),
         }

@@ -377,7 +377,7 @@ def test_datatree_prior_groups_units_and_attributes(recovery_fit: FitResult, one
     """
     r = recovery_fit
     dt = r.datatree
-    n_prior = r.config.n_prior_draws
+    n_prior = r.settings.n_prior_draws
     n_jump = dt.observed_data.sizes["jump"]
     priors = default_priors()
     prior = dt.prior.to_dataset()
@@ -699,7 +699,7 @@ def test_compare_commands(tiny_fits, two_phis: Path) -> None:
 def test_compare_commands_needs_per_phi(tiny_fits) -> None:
     """compare_commands refuses a quadratic fit (no per-phi runs to compare against)."""
     quad = dataclasses.replace(
-        tiny_fits[0], config=dataclasses.replace(tiny_fits[0].config, phi_mode="quadratic")
+        tiny_fits[0], settings=dataclasses.replace(tiny_fits[0].settings, phi_mode="quadratic")
     )
     with pytest.raises(ValueError, match="per_phi"):
         compare_commands(Experiment(), pd.DataFrame(), quad)

@@ -277,8 +277,8 @@ def test_a_new_jump_is_predicted_on_a_new_bed(latent_fit) -> None:
     spread = np.nanstd(wide.height_mm - wide.height_sim_mm)
     sigma = float(np.median(wide.table["sigma_mm_median"]))
     assert spread > 1.1 * sigma
-    config = dataclasses.replace(saved.config, bed_phi="measured")
-    as_measured = dataclasses.replace(saved, config=config, _models={})
+    config = dataclasses.replace(saved.settings, bed_phi="measured")
+    as_measured = dataclasses.replace(saved, settings=config, _models={})
     narrow = predict(
         as_measured, "delayed_stutter_preload", 0.622, freq_hz=freqs, n_draws=None, rng=1
     )

@@ -76,7 +76,7 @@ class FitBank:
         log: Callable[..., None],
         progress: Callable[[str, ProgressInfo], None] | None = None,
     ) -> None:
-        self.experiment, self.config = experiment, settings
+        self.experiment, self.settings = experiment, settings
         self.data = _as_measurements(table)
         #: One row per unit of leave-one-out: ``kind``, ``unit``, ``phi``, ``command``.
         self.units = self.data.units
@@ -103,13 +103,13 @@ class FitBank:
         return dict(self.priors if self.priors is not None else default_priors())
 
     def _fit_config(self, key: tuple[str, ...], scale: int = 1) -> FitSettings:
-        s = self.config.sampler
+        s = self.settings.sampler
         return FitSettings(
             terms=key,
             sampler=replace(s, max_steps=s.max_steps * scale),
-            n_threads=self.config.n_threads,
+            n_threads=self.settings.n_threads,
             n_prior_draws=0,
-            calibration=self.config.calibration,
+            calibration=self.settings.calibration,
         )
 
     def _law_seed(self, key: tuple[str, ...], attempt: int) -> int:
@@ -180,7 +180,7 @@ class FitBank:
         loo = stats.loo(result.datatree)
         if parent_key is not None and reruns == 0:
             diff, se = stats.elpd_difference(loo["elpd_i"], self.loos[parent_key]["elpd_i"])
-            if diff < -(self.config.nested_tolerance + 2.0 * se):
+            if diff < -(self.settings.nested_tolerance + 2.0 * se):
                 notes.append(
                     f"ELPD {diff:+.1f} ± {se:.1f} below its nested parent "
                     f"({' + '.join(parent_key)}): a sampling failure; rerun with another seed"
@@ -416,7 +416,7 @@ class FitBank:
         ndarray of int
             Fold of each unit (-1 at other volume fractions).
         """
-        t, k = self.units, self.config.kfold
+        t, k = self.units, self.settings.kfold
         rng = np.random.default_rng([self.seed, round(phi * 1e6)])
         folds = np.full(len(t), -1)
         at = t[t["phi"] == phi]
@@ -459,7 +459,7 @@ class Pointwise:
         self.kfold: dict[tuple[tuple[str, ...], float], np.ndarray] = {}
 
     def __call__(self, keys: Sequence[tuple[str, ...]]) -> tuple[list[np.ndarray], str]:
-        bank, cfg = self.bank, self.bank.config
+        bank, cfg = self.bank, self.bank.settings
         t = bank.units
         matched = dict(zip(keys, bank.moment_matched_many(keys), strict=True))
         bad = sorted(set().union(*(np.flatnonzero(~m[1]).tolist() for m in matched.values())))

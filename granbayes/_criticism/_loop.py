@@ -96,7 +96,7 @@ def _score_round(
     round_no: int,
 ) -> list[Candidate]:
     """Screen, fit and score the candidates of a round (fallbacks where they decide)."""
-    cfg, loos = bank.config, bank.loos
+    cfg, loos = bank.settings, bank.loos
     terms = cfg.candidate_terms(current)
     screen_gain = {t: float("nan") for t in terms}
     if cfg.screen:
@@ -195,7 +195,7 @@ def _versus_chosen(
     Where PSIS-LOO does not already separate the two by twice the rule's margin, jumps with
     bad Pareto k in either law are recomputed (``Pointwise``), as for the decision itself.
     """
-    loos, cfg = pointwise.bank.loos, pointwise.bank.config
+    loos, cfg = pointwise.bank.loos, pointwise.bank.settings
     key = terms_of((*current, chosen.term))
     out = []
     for c in scored:
@@ -315,7 +315,7 @@ def _record(
     z_thr: dict[str, float],
 ) -> DiagnosisRecord:
     """The typed record of a finished loop."""
-    cfg = bank.config
+    cfg = bank.settings
     baseline, selected = bank.fits[base], bank.fits[current]
     if current == base:
         gain, gain_se, gain_method = 0.0, 0.0, "none added"
