@@ -67,7 +67,7 @@ def main() -> None:
         prof = cProfile.Profile()
         t0 = time.perf_counter()
         prof.enable()
-        result = fit(experiment, table, config, seed=args.seed, backend=Path(tmp) / "chains")
+        result = fit(experiment, table, config, seed=args.seed, checkpoint=Path(tmp) / "chains")
         t_fit = time.perf_counter() - t0
         prof.disable()
         t1 = time.perf_counter()

@@ -715,7 +715,7 @@ def run_fit(args: argparse.Namespace) -> int:
             config,
             seed=args.seed,
             priors=priors,
-            backend=work / "chains",
+            checkpoint=work / "chains",
             resume=args.resume,
             data_source=str(args.data),
             progress=bars,

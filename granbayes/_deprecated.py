@@ -105,6 +105,16 @@ def install_moved_modules(moved: Mapping[str, str]) -> None:
         sys.meta_path.append(_MovedModuleFinder(moved))
 
 
+def _outside_this_module() -> int:
+    """The ``stacklevel`` of the first frame outside this module, for ``warnings.warn``
+    called here (``skip_file_prefixes`` does not skip at ``stacklevel=2`` in Python 3.12.1).
+    """
+    level, frame = 1, sys._getframe(1)
+    while frame is not None and frame.f_code.co_filename == __file__:
+        level, frame = level + 1, frame.f_back
+    return level
+
+
 def renamed_keyword(old: str, new: str = "settings") -> Callable[[_F], _F]:
     """Decorator: a function's keyword ``old`` is now ``new``; ``old=`` still works, warned.
 
@@ -134,7 +144,7 @@ def renamed_keyword(old: str, new: str = "settings") -> Callable[[_F], _F]:
                 warnings.warn(
                     f"{func.__name__}({old}=...) is deprecated; use {new}=...",
                     DeprecationWarning,
-                    stacklevel=2,
+                    stacklevel=_outside_this_module(),  # decorators stack: name the caller
                 )
                 kwargs[new] = kwargs.pop(old)
             return func(*args, **kwargs)

@@ -494,7 +494,7 @@ def _run_parts(
     specs: Sequence[tuple[str, JumpModel, np.ndarray]],
     settings: FitSettings | Sequence[FitSettings],
     seeds: Sequence[int],
-    backend: Path | None,
+    checkpoint: Path | None,
     resume: bool,
     warms: Sequence[np.ndarray | None] | None = None,
     progress: Callable[[str, ProgressInfo], None] | None = None,
@@ -511,7 +511,7 @@ def _run_parts(
     warms = list(warms) if warms is not None else [None] * len(specs)
     models = [model for _, model, _ in specs]
     checkpoints = [
-        None if backend is None else Path(backend) / f"{label}.h5" for label, _, _ in specs
+        None if checkpoint is None else Path(checkpoint) / f"{label}.h5" for label, _, _ in specs
     ]
     fresh = [i for i, c in enumerate(checkpoints) if not (resume and c is not None and c.exists())]
     starts = _find_starts_many(
@@ -680,6 +680,7 @@ def part_models(
 
 
 @renamed_keyword("config")
+@renamed_keyword("backend", "checkpoint")
 def fit(
     experiment: Experiment,
     table: pd.DataFrame | Measurements,
@@ -687,7 +688,7 @@ def fit(
     *,
     seed: int = 0,
     priors: Mapping[str, Prior] | None = None,
-    backend: str | Path | None = None,
+    checkpoint: str | Path | None = None,
     resume: bool = False,
     data_source: str = "",
     warm_start: xr.DataTree | None = None,
@@ -708,10 +709,10 @@ def fit(
         Master seed; recorded in the result.
     priors : mapping of str to Prior, optional
         Priors (default: :func:`granbayes._priors.default_priors`).
-    backend : str or Path, optional
+    checkpoint : str or Path, optional
         Folder of HDF5 checkpoints (one file per run, ``<label>.h5``).
     resume : bool
-        Continue the runs stored in ``backend``.
+        Continue the runs stored in ``checkpoint``.
     data_source : str
         Where the data came from (recorded).
     warm_start : xarray.DataTree, optional
@@ -728,7 +729,7 @@ def fit(
     settings = settings or FitSettings()
     priors = dict(priors if priors is not None else default_priors())
     data = _as_measurements(table)
-    backend = Path(backend) if backend is not None else None
+    checkpoint = Path(checkpoint) if checkpoint is not None else None
     specs = part_models(experiment, data, settings, priors)
     warms = [
         _warm_positions(model, warm_start, float(model.phis[0]))
@@ -736,7 +737,9 @@ def fit(
         else None
         for _, model, _ in specs
     ]
-    parts = _run_parts(specs, settings, _seeds(seed, len(specs)), backend, resume, warms, progress)
+    parts = _run_parts(
+        specs, settings, _seeds(seed, len(specs)), checkpoint, resume, warms, progress
+    )
     return _assemble(parts, experiment, data, settings, priors, seed, data_source)
 
 

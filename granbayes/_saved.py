@@ -14,7 +14,7 @@ and reports (:func:`granbayes.report.write_fit_report`) work the same on a fit i
 
 What is not stored, and so not available after loading: the full chains (only the kept
 draws are saved) and the sampler's random state; a saved fit cannot be resumed (use
-``fit(..., backend=..., resume=True)`` with the checkpoint folder for that).
+``fit(..., checkpoint=..., resume=True)`` with the checkpoint folder for that).
 """
 
 from __future__ import annotations

@@ -151,6 +151,7 @@ def test_former_names_of_the_settings_are_deprecated_aliases(
         ("simulate_frames_rows", "options"),
         ("make_jumps", "options"),
         ("fit", "config"),
+        ("fit", "backend"),
         ("diagnose", "config"),
         ("run_sbc", "config"),
     ],
@@ -159,10 +160,11 @@ def test_former_settings_keywords_are_deprecated(function: str, old: str) -> Non
     """Every ``*Settings`` argument is called ``settings``; the former keyword still reaches
     it, with a warning at the caller's line, and both at once are refused."""
     func = getattr(gb, function)
-    with pytest.raises(TypeError, match=f"got both {old}= and settings="):
-        func(**{old: None, "settings": None})
+    new = "checkpoint" if old == "backend" else "settings"
+    with pytest.raises(TypeError, match=f"got both {old}= and {new}="):
+        func(**{old: None, new: None})
     with pytest.warns(
-        DeprecationWarning, match=rf"{function}\({old}=\.\.\.\) is deprecated"
+        DeprecationWarning, match=rf"{function}\({old}=\.\.\.\) is deprecated; use {new}="
     ) as rec:
         with pytest.raises(Exception):  # noqa: B017 (no arguments: fails after the warning)
             func(**{old: None})

@@ -619,10 +619,10 @@ def test_library_resume_across_volume_fractions(
     with monkeypatch.context() as m:
         interrupt_sampling_after(m, 200, run=1)
         with pytest.raises(KeyboardInterrupt):
-            fit(experiment, table, config, seed=11, backend=backend)
+            fit(experiment, table, config, seed=11, checkpoint=backend)
     assert stored_steps(backend / "phi=0.602.h5") == [TINY.check_every] * TINY.n_ensembles
     assert stored_steps(backend / "phi=0.622.h5") == [TINY.check_every] * TINY.n_ensembles
-    resumed = fit(experiment, table, config, seed=11, backend=backend, resume=True)
+    resumed = fit(experiment, table, config, seed=11, checkpoint=backend, resume=True)
     assert_same_groups(resumed.datatree, tiny_fits[0].datatree)
     assert resumed.datatree.attrs["runs"] == tiny_fits[0].datatree.attrs["runs"]
 
@@ -638,12 +638,12 @@ def test_resume_refuses_a_checkpoint_made_for_other_data(two_phis: Path, tmp_pat
     table = table[table["phi"] == 0.602]
     config = FitSettings(terms=("depth",), sampler=TINY, n_threads=1, n_prior_draws=0)
     backend = tmp_path / "chains"
-    fit(experiment, table, config, seed=11, backend=backend)
+    fit(experiment, table, config, seed=11, checkpoint=backend)
     changed = table.assign(height_mm=table["height_mm"] + 1.0)
     with pytest.raises(CheckpointMismatchError, match="other data or settings"):
-        fit(experiment, changed, config, seed=11, backend=backend, resume=True)
+        fit(experiment, changed, config, seed=11, checkpoint=backend, resume=True)
     with pytest.raises(CheckpointMismatchError, match="other data or settings"):
-        fit(experiment, table, config, seed=12, backend=backend, resume=True)
+        fit(experiment, table, config, seed=12, checkpoint=backend, resume=True)
     assert issubclass(CheckpointMismatchError, ValueError)
 
 
@@ -919,8 +919,8 @@ def test_cli_bad_input(case: str, one_phi: Path, tmp_path: Path, monkeypatch, ca
 
 
 def _fail_in_fit(exc: type[BaseException]):
-    def fake_fit(experiment, table, config, *, backend, **kwargs):
-        work = Path(backend).parent  # the staging folder
+    def fake_fit(experiment, table, settings, *, checkpoint, **kwargs):
+        work = Path(checkpoint).parent  # the staging folder
         (work / "posterior.nc").write_bytes(b"half-written")
         (work / "summary.md").write_text("partial\n")
         raise exc("failed mid-way")
