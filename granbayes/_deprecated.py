@@ -106,8 +106,10 @@ def install_moved_modules(moved: Mapping[str, str]) -> None:
 
 
 def _outside_this_module() -> int:
-    """The ``stacklevel`` of the first frame outside this module, for ``warnings.warn``
-    called here (``skip_file_prefixes`` does not skip at ``stacklevel=2`` in Python 3.12.1).
+    """The ``stacklevel`` of the first frame outside this module (for ``warnings.warn``).
+
+    ``skip_file_prefixes`` would say the same, but does not skip at ``stacklevel=2`` in
+    Python 3.12.1.
     """
     level, frame = 1, sys._getframe(1)
     while frame is not None and frame.f_code.co_filename == __file__:
