@@ -9,9 +9,9 @@ foot, physics-model.md section 5b), drag does not.
 
 The law ``depth + drag + added_mass`` (the true terms of the SYNTHETIC data set
 ``granbayes/data/added_mass``, made by ``data/generate_lab_reference.py``) is fitted per
-volume fraction three times with the same seed and the converged default chain settings
+volume fraction four times with the same seed and the converged default chain settings
 of ``granbayes fit``: (i) jump heights only, (ii) heights + tracked jumps, (iii) heights +
-tracked jumps + intrusion curves. Per case and volume fraction it reports the posterior
+intrusion curves, (iv) heights + tracked jumps + intrusion curves. Per case and volume fraction it reports the posterior
 median and 90% equal-tailed interval of kappa and c_d against the truth (``truth.toml`` of
 the folder, when there is one), the width of kappa's interval relative to its prior range,
 the posterior contraction (``granbayes.stats.identifiability_table``), the joint posterior
@@ -49,10 +49,11 @@ ADDED_MASS_DATA = Path(common.REFERENCE_DATA).parent / "added_mass"
 #: The force law fitted: the true terms of the added-mass data set.
 TERMS = ("depth", "drag", "added_mass")
 
-#: The three cases: label -> kinds of measurement.
+#: The four cases: label -> kinds of measurement.
 CASES: dict[str, tuple[str, ...]] = {
     "heights": ("heights",),
     "heights + trajectories": ("heights", "trajectories"),
+    "heights + intrusions": ("heights", "intrusions"),
     "heights + trajectories + intrusions": ("heights", "trajectories", "intrusions"),
 }
 
@@ -151,7 +152,7 @@ def _figure(ctx: common.Context, cases: list[dict], truth: dict) -> Figure:
     phis = sorted(cases[0]["joint"])
     fig = Figure(figsize=(4.0 * len(phis), 7.0), layout="constrained")
     axes = fig.subplots(2, len(phis), squeeze=False)
-    colours = ("tab:grey", "tab:blue", "tab:red")
+    colours = ("tab:grey", "tab:blue", "tab:green", "tab:red")
     rng = ctx.rng(1)
     for j, phi in enumerate(phis):
         true = truth.get(round(phi, 6), {})
@@ -270,7 +271,7 @@ def _verdict(table: pd.DataFrame, cases: list[dict]) -> str:
 
 
 def analysis(ctx: common.Context) -> tuple[str, dict]:
-    """Fit the three cases, tabulate, plot, and write the answer."""
+    """Fit the four cases, tabulate, plot, and write the answer."""
     truth_path = ctx.data / "truth.toml"
     truth = (
         {round(p, 6): v for p, v in load_truth(truth_path).items()} if truth_path.is_file() else {}
@@ -307,7 +308,7 @@ def analysis(ctx: common.Context) -> tuple[str, dict]:
 
     threads = getattr(ctx.args, "threads", None)
     body = [
-        f"The law `{' + '.join(TERMS)}` fitted per volume fraction to the same data three "
+        f"The law `{' + '.join(TERMS)}` fitted per volume fraction to the same data four "
         f"times (seed {ctx.seed}, the converged default chain settings of `granbayes fit`"
         + (", **fast mode: short capped chains, rough numbers**" if ctx.fast else "")
         + f"; numba threads: {threads if threads else 'all cores'}). "

@@ -461,11 +461,23 @@ class Measurements:
         return tuple(self.tables)
 
     def unit_of_row(self, kind: str) -> np.ndarray:
-        """The unit (within its kind) of every row of a kind's table."""
+        """The unit (within its kind) of every row of a kind's table.
+
+        Parameters
+        ----------
+        kind : str
+            A kind of measurement (``heights``, ``trajectories``, ``intrusions``).
+        """
         return self._unit_of_row[kind]
 
     def n_units_of(self, kind: str) -> int:
-        """Number of units of a kind (0 if absent)."""
+        """Number of units of a kind (0 if absent).
+
+        Parameters
+        ----------
+        kind : str
+            A kind of measurement (``heights``, ``trajectories``, ``intrusions``).
+        """
         return self._n.get(kind, 0)
 
     @property
@@ -474,7 +486,13 @@ class Measurements:
         return sum(self._n.values())
 
     def offset(self, kind: str) -> int:
-        """Global number of a kind's first unit."""
+        """Global number of a kind's first unit.
+
+        Parameters
+        ----------
+        kind : str
+            A kind of measurement (``heights``, ``trajectories``, ``intrusions``).
+        """
         out = 0
         for k in self.tables:
             if k == kind:
@@ -539,11 +557,23 @@ class Measurements:
         return Measurements(tables, self.unit_columns, origin)
 
     def at_phi(self, phi: float) -> Measurements:
-        """The measurements at one volume fraction."""
+        """The measurements at one volume fraction.
+
+        Parameters
+        ----------
+        phi : float
+            A measured volume fraction [-].
+        """
         return self.select(self.units["phi"].to_numpy(float) == phi)
 
     def units_at_phi(self, phi: float) -> np.ndarray:
-        """Global numbers of the units at one volume fraction."""
+        """Global numbers of the units at one volume fraction.
+
+        Parameters
+        ----------
+        phi : float
+            A measured volume fraction [-].
+        """
         return np.flatnonzero(self.units["phi"].to_numpy(float) == phi)
 
     def hash_text(self) -> str:

@@ -216,7 +216,7 @@ def replicate_ranks(
 
     Parameters
     ----------
-    experiment, design, config, priors
+    experiment, design, settings, priors
         As :func:`draw_replicate`.
     n_rank_draws : int
         Posterior draws each true value is ranked among.

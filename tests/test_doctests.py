@@ -16,8 +16,12 @@ import pytest
 
 import granbayes
 
+#: Every module and subpackage module (``granbayes.analysis.maps`` too), the command's entry
+#: point and the package data excepted.
 MODULES = sorted(
-    info.name for info in pkgutil.iter_modules(granbayes.__path__) if info.name != "__main__"
+    info.name.removeprefix("granbayes.")
+    for info in pkgutil.walk_packages(granbayes.__path__, "granbayes.")
+    if not info.name.endswith("__main__") and not info.name.startswith("granbayes.data")
 )
 
 

@@ -83,7 +83,7 @@ class JumpModel:
         Whether the heights' scatter is fitted per volume fraction or once.
     fixed : mapping of str to float, optional
         Values of parameters that are not fitted (override ``absent``).
-    options : SolverSettings, optional
+    settings : SolverSettings, optional
         Integrator settings.
     n_threads : int, optional
         numba threads for the simulator.

@@ -106,7 +106,13 @@ K_EXTEND_MAX = 2
 
 
 def short(command: str) -> str:
-    """Command name for labels (``delayed stutter preload``)."""
+    """Command name for labels (``delayed stutter preload``).
+
+    Parameters
+    ----------
+    command : str
+        A command name (``delayed_stutter_preload``).
+    """
     return command.replace("_", " ")
 
 
@@ -319,7 +325,13 @@ class Evaluation:
 
 
 def argmin_2d(values: np.ndarray) -> tuple[int, int] | None:
-    """Index of the smallest finite value of a 2-d array (None if there is none)."""
+    """Index of the smallest finite value of a 2-d array (None if there is none).
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        A 2-d array (NaN and infinite values are ignored).
+    """
     if not np.isfinite(values).any():
         return None
     i = int(np.nanargmin(values))
