@@ -11,11 +11,12 @@ The law ``depth + drag + added_mass`` (the true terms of the SYNTHETIC data set
 ``granbayes/data/added_mass``, made by ``data/generate_lab_reference.py``) is fitted per
 volume fraction four times with the same seed and the converged default chain settings
 of ``granbayes fit``: (i) jump heights only, (ii) heights + tracked jumps, (iii) heights +
-intrusion curves, (iv) heights + tracked jumps + intrusion curves. Per case and volume fraction it reports the posterior
-median and 90% equal-tailed interval of kappa and c_d against the truth (``truth.toml`` of
-the folder, when there is one), the width of kappa's interval relative to its prior range,
-the posterior contraction (``granbayes.stats.identifiability_table``), the joint posterior
-correlation of kappa and c_d, each run's convergence and each fit's wall time.
+intrusion curves, (iv) heights + tracked jumps + intrusion curves. Per case and volume
+fraction it reports the posterior median and 90% equal-tailed interval of kappa and c_d
+against the truth (``truth.toml`` of the folder, when there is one), the width of kappa's
+interval relative to its prior range, the posterior contraction
+(``granbayes.stats.identifiability_table``), the joint posterior correlation of kappa and
+c_d, each run's convergence and each fit's wall time.
 
 Default DIR: ``granbayes/data/added_mass``. Results: ``docs/analyses/kappa_identification/``
 (``make``-style: ``python analyses/kappa_identification.py --out
