@@ -14,14 +14,16 @@ LINTED := granbayes tests benchmarks analyses data $(wildcard docs/*.py)
 
 # The exact versions of every dependency (README, "Reproducibility"); `pip install .` keeps
 # the ranges of pyproject.toml instead. `make lock` refreshes it to the newest allowed.
+# `--no-compile`: pip would byte-compile every module of every dependency (49 s of a 62-s
+# install here); Python compiles the modules actually imported, once, on first use.
 LOCK := requirements.lock
 
 $(BIN)/.installed: pyproject.toml $(LOCK)
 	@test -n "$(PYTHON)" || { echo "error: Python >= 3.12 not found (set PYTHON=/path/to/python3.12)"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -r $(LOCK)
-	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
+	$(BIN)/python -m pip install --quiet --no-compile -r $(LOCK)
+	$(BIN)/python -m pip install --quiet --no-compile --no-deps --no-build-isolation -e .
 	touch $@
 
 # A fresh environment with the newest versions pyproject.toml allows, frozen (granbayes itself

@@ -19,10 +19,12 @@ notice. ``tests/test_public_api.py`` holds that ``analyses/`` uses nothing else.
 
 Settings objects are named ``*Settings``: :class:`FitSettings`, :class:`SamplerSettings`,
 :class:`SolverSettings`, :class:`DiagnoseSettings`, and
-:class:`granbayes.campaign.ClusterSettings`. Deprecated, with a ``DeprecationWarning``
-naming the new name: the former names ``FitConfig``, ``SolverOptions`` and
-``DiagnoseConfig`` of the same classes, and the former module paths of the implementation
-(``granbayes.fitting`` for ``granbayes._fitting``, ``granbayes.maps`` for
+:class:`granbayes.campaign.ClusterSettings`; an argument or attribute that holds one is
+called ``settings``. Deprecated, with a ``DeprecationWarning`` naming the new name: the
+former names ``FitConfig``, ``SolverOptions`` and ``DiagnoseConfig`` of the same classes,
+the keywords ``config=``/``options=`` (now ``settings=``) and ``backend=`` (now
+``checkpoint=``), the attribute ``.config`` of a fit, and the former module paths of the
+implementation (``granbayes.fitting`` for ``granbayes._fitting``, ``granbayes.maps`` for
 ``granbayes.analysis.maps``, ...; :data:`MOVED_MODULES`).
 """
 
