@@ -13,6 +13,7 @@ import importlib
 import importlib.abc
 import importlib.machinery
 import importlib.util
+import os
 import sys
 import warnings
 from collections.abc import Callable, Mapping
@@ -21,7 +22,13 @@ from typing import Any, TypeVar
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
-__all__ = ["alias_getattr", "install_moved_modules", "renamed_keyword", "warn_alias"]
+__all__ = [
+    "alias_getattr",
+    "install_moved_modules",
+    "outside_package",
+    "renamed_keyword",
+    "warn_alias",
+]
 
 
 def warn_alias(module: str, old: str, new: str) -> None:
@@ -105,14 +112,23 @@ def install_moved_modules(moved: Mapping[str, str]) -> None:
         sys.meta_path.append(_MovedModuleFinder(moved))
 
 
-def _outside_this_module() -> int:
-    """The ``stacklevel`` of the first frame outside this module (for ``warnings.warn``).
+_PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
 
-    ``skip_file_prefixes`` would say the same, but does not skip at ``stacklevel=2`` in
-    Python 3.12.1.
+
+def outside_package() -> int:
+    """The ``stacklevel`` of the first frame outside the package, for ``warnings.warn``.
+
+    Called by the function that warns: a deprecation names the user's line even through
+    decorators and public functions that pass the old form on. (``skip_file_prefixes``
+    would say the same, but does not skip at ``stacklevel=2`` in Python 3.12.1.)
+
+    Returns
+    -------
+    int
+        1 for the caller itself, 2 for its caller, ...
     """
     level, frame = 1, sys._getframe(1)
-    while frame is not None and frame.f_code.co_filename == __file__:
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE):
         level, frame = level + 1, frame.f_back
     return level
 
@@ -146,7 +162,7 @@ def renamed_keyword(old: str, new: str = "settings") -> Callable[[_F], _F]:
                 warnings.warn(
                     f"{func.__name__}({old}=...) is deprecated; use {new}=...",
                     DeprecationWarning,
-                    stacklevel=_outside_this_module(),  # decorators stack: name the caller
+                    stacklevel=outside_package(),  # decorators stack: name the caller
                 )
                 kwargs[new] = kwargs.pop(old)
             return func(*args, **kwargs)

@@ -59,6 +59,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
+from ._deprecated import outside_package
 from ._files import atomic_path, jsonable, partial_folder, staged_folder, write_json
 
 if TYPE_CHECKING:
@@ -175,7 +176,7 @@ def cluster_settings(
         warnings.warn(
             f"{where}({names}=...) is deprecated; pass cluster=ClusterSettings({names}=...)",
             DeprecationWarning,
-            stacklevel=3,
+            stacklevel=outside_package(),  # the user's line, through run_sbc too
         )
         cluster = replace(cluster, **legacy)
     return cluster

@@ -213,10 +213,13 @@ def test_the_former_loose_cluster_keywords_are_deprecated(tmp_path: Path) -> Non
     """``scheduler_address=`` etc. still work (as ``ClusterSettings`` fields), with a warning
     that names the new form; a keyword that was never one is a TypeError."""
     with (
-        pytest.warns(DeprecationWarning, match=r"cluster=ClusterSettings\(scheduler_address"),
+        pytest.warns(
+            DeprecationWarning, match=r"cluster=ClusterSettings\(scheduler_address"
+        ) as rec,
         pytest.raises(CampaignError, match="not a Dask address"),
     ):
         run_campaign(tasks_of(2), tmp_path / "c", description={}, scheduler_address="nowhere")
+    assert rec[0].filename == __file__  # the caller's line
     with pytest.raises(TypeError, match="unexpected keyword argument 'n_worker'"):
         run_campaign(tasks_of(2), tmp_path / "c", description={}, n_worker=2)
     assert list(tmp_path.iterdir()) == []
