@@ -1,6 +1,6 @@
 """Study: coverage of ``k`` and ``c_d`` when the robot is known only to its calibration.
 
-Simulation-based calibration (``granbayes._sbc.run_sbc``, a Dask campaign) on a SYNTHETIC
+Simulation-based calibration (``granbayes.run_sbc``, a Dask campaign) on a SYNTHETIC
 design (2 volume fractions x 5 commands x 2 trials at 10 Hz; the design's heights are
 replaced by every replicate) of an experiment whose ``[robot.uncertainty]`` gives the
 spring, the motor mass and the stroke a calibration sd (``granbayes.calibration.

@@ -3,7 +3,7 @@
 The demo's work lives here, not in the command line: :func:`run_demo` simulates the five
 commands with a representative (not measured) law, sweeps the actuator frequency on a
 rigid floor, and fits depth + drag to the SYNTHETIC reference data set
-(:data:`granbayes._synthetic.REFERENCE_DATA`), writing figures and tables. It prints its
+(:data:`granbayes.REFERENCE_DATA`), writing figures and tables. It prints its
 progress; ``granbayes demo --quiet`` silences it.
 """
 

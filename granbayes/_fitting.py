@@ -708,7 +708,7 @@ def fit(
     seed : int
         Master seed; recorded in the result.
     priors : mapping of str to Prior, optional
-        Priors (default: :func:`granbayes._priors.default_priors`).
+        Priors (default: :func:`granbayes.default_priors`).
     checkpoint : str or Path, optional
         Folder of HDF5 checkpoints (one file per run, ``<label>.h5``).
     resume : bool

@@ -1,6 +1,6 @@
 """The design loop of a SYNTHETIC jumps table, shared by the public generator and the test kit.
 
-:func:`granbayes._synthetic.make_jumps` (heights from the compiled kernel, for users' own
+:func:`granbayes.make_jumps` (heights from the compiled kernel, for users' own
 synthetic experiments) and :func:`granbayes.testing.synthetic_jumps` (heights from the
 independent oracle, for the tests) differ only in who computes the true height; this
 module holds what they share: the loop order, the seeded scatter and the columns. It

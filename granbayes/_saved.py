@@ -7,7 +7,7 @@ settings and ``phi_c`` (``experiment``), the force parameters (``parameters``) a
 record per sampler run (``runs``). :class:`SavedFit` gives them back as granbayes objects,
 rebuilds each run's :class:`~granbayes._likelihood.JumpModel` and converts the posterior
 draws back to that model's sampling coordinates, so that prediction
-(:func:`granbayes.predict`), residuals (:func:`granbayes._criticism.residual_table`),
+(:func:`granbayes.predict`), residuals (:func:`granbayes.residual_table`),
 PSIS-LOO comparison (:func:`granbayes._datatree.loo`, :func:`granbayes._datatree.compare`)
 and reports (:func:`granbayes.report.write_fit_report`) work the same on a fit in memory
 (``SavedFit.from_datatree(result.datatree)``) and on one read from disk.

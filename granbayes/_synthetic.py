@@ -37,7 +37,7 @@ def make_jumps(
     commands: Sequence[str] = COMMAND_NAMES,
     trials: int = 5,
     seed: int = 0,
-    label: str = "granbayes._synthetic.make_jumps",
+    label: str = "granbayes.make_jumps",
     settings: SolverSettings | None = None,
     decimals: int | None = 3,
 ) -> pd.DataFrame:

@@ -2,7 +2,7 @@
 
 A verdict such as "the missing physics is drag" is a scientific claim; one data set proves
 nothing. This module makes many data sets whose truth is known and records what
-:func:`granbayes._criticism.diagnose` concludes on each:
+:func:`granbayes.diagnose` concludes on each:
 
 ``null``
     the truth is the baseline law (``depth`` with a quadratic ``k(phi)``): every verdict

@@ -797,7 +797,7 @@ def save_tie_laws(diagnosis: object, folder: str | Path) -> list[Path]:
 
     Parameters
     ----------
-    diagnosis : granbayes._criticism.Diagnosis
+    diagnosis : granbayes.Diagnosis
         An in-memory diagnosis (its ``record`` and ``fits``).
     folder : str or Path
         The diagnosis folder.
@@ -849,7 +849,7 @@ def design_from_diagnosis(
     max_jumps, n_draws, rng
         As :func:`design_jumps`.
     data_sha256 : str, optional
-        The measurements' hash (:func:`granbayes._fitting.data_hash`): checked against
+        The measurements' hash (:func:`granbayes.data_hash`): checked against
         the diagnosed data's before anything is computed.
 
     Returns

@@ -54,7 +54,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class DefaultPrior:
-    """The default prior of a parameter, with its reason (:class:`granbayes._priors.Prior`).
+    """The default prior of a parameter, with its reason (:class:`granbayes.Prior`).
 
     Parameters
     ----------

@@ -102,7 +102,7 @@ def write_fit_report(
     truth : mapping, optional
         Synthetic truth per volume fraction (overlaid on figures, compared in the summary).
     uniqueness : pandas.DataFrame, optional
-        Output of :func:`granbayes._fitting.compare_commands`.
+        Output of :func:`granbayes.compare_commands`.
     diagnostics_plots : bool
         Whether to draw trace and rank plots.
 

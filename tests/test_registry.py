@@ -76,7 +76,7 @@ def registered(monkeypatch: pytest.MonkeyPatch) -> Parameter:
 def test_every_parameter_has_bounds_prior_reason_label_and_unit(param: Parameter) -> None:
     """Bounds, realistic range, default prior and its reason, label and unit are all there.
 
-    The default prior is a valid :class:`~granbayes._priors.Prior` in the parameter's unit,
+    The default prior is a valid :class:`~granbayes.Prior` in the parameter's unit,
     its support and the realistic range lie inside the hard bounds, and the label names
     the unit (with Unicode superscripts for a power, e.g. ``N/m^2`` -> ``N/m²``).
     """

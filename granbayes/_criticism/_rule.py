@@ -98,7 +98,7 @@ class DiagnoseSettings:
         numba threads for the simulator.
     calibration : {"sample", "nominal"}
         Whether every fit samples the robot parameters ``experiment.toml`` gives an
-        uncertainty (:class:`granbayes._fitting.FitSettings`), so that no law is credited
+        uncertainty (:class:`granbayes.FitSettings`), so that no law is credited
         with what a miscalibrated robot explains, or takes the nominal robot as exact.
     """
 

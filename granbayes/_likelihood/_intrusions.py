@@ -2,7 +2,7 @@
 
 Each test drives the foot alone at a constant speed into a fresh bed
 (physics-model.md section 5b); the model's force at every sample's depth is closed-form
-(:func:`granbayes._simulator.intrusion_force_rows`, no ODE), so the block asks the jump
+(:func:`granbayes.intrusion_force_rows`, no ODE), so the block asks the jump
 simulator for nothing. Observation model: the measured force is the model's plus
 independent Gaussian noise of a fitted scale ``force_sd_N`` [N] per volume fraction (one
 load cell, read at depths much farther apart than the cell's response: white noise). The

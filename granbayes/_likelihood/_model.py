@@ -71,7 +71,7 @@ class JumpModel:
         Force terms to fit (``depth`` is always included); parameters of other terms take
         their ``absent`` value unless given in ``fixed``.
     priors : mapping of str to Prior, optional
-        Priors per parameter (defaults: :func:`granbayes._priors.default_priors`; a block's
+        Priors per parameter (defaults: :func:`granbayes.default_priors`; a block's
         own parameters fall back on the block's defaults).
     phi_mode : {"per_phi", "quadratic"}
         Parametrisation across volume fractions (module docstring).

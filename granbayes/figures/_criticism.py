@@ -35,7 +35,7 @@ def plot_residual_heatmap(residuals: pd.DataFrame, title: str, z_threshold: floa
     Parameters
     ----------
     residuals : pandas.DataFrame
-        Cells (:func:`granbayes._criticism.residual_table`).
+        Cells (:func:`granbayes.residual_table`).
     title : str
         Figure title.
     z_threshold : float

@@ -29,11 +29,11 @@ never makes its own test data (``tests/test_layers.py`` checks who imports what)
   heights), for tests of statistics, figures and reports (like ``arviz_base.testing``);
 * :func:`synthetic_jumps`, SYNTHETIC jump tables for tests: a known force law simulated
   by the oracle for every cell of a small design plus seeded Gaussian scatter, with the
-  rows and draws of the public generator :func:`granbayes._synthetic.make_jumps` (which
+  rows and draws of the public generator :func:`granbayes.make_jumps` (which
   uses the kernel, for users' own synthetic experiments) and what tests need: a constant
   law given as a mapping, oracle effects, the command-setting columns of a batch table,
   and no ``true_height_mm`` column unless asked for. Write a table as an
-  experiment folder with :func:`granbayes._synthetic.write_experiment`.
+  experiment folder with :func:`granbayes.write_experiment`.
 
 The oracle follows ``docs/physics-model.md`` directly, with Python right-hand sides and
 solve_ivp's own event machinery. It shares nothing with the compiled integrator except the

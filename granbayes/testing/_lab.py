@@ -399,7 +399,7 @@ def synthetic_lab_data(
     true_exp, uncertainty = _true_robot(nominal, design, rng_robot)
     source = f"synthetic: {label} seed={seed}"
 
-    # the jumps, in the order of granbayes._synthetic.make_jumps: phi, freq, command, trial
+    # the jumps, in the order of granbayes.make_jumps: phi, freq, command, trial
     cells = [
         (phi, freq, command)
         for phi in design.phis

@@ -3,7 +3,7 @@
 The true heights come from :func:`granbayes.testing.simulate_height_scipy`, which shares no
 numerical code with the compiled kernel that the fits use: a flaw of the kernel cannot be in
 the data that test it. The design loop and the random draws are those of the public
-generator :func:`granbayes._synthetic.make_jumps` (which uses the kernel, for users' own
+generator :func:`granbayes.make_jumps` (which uses the kernel, for users' own
 synthetic experiments), so a table differs from ``make_jumps``'s only by the difference of
 the two implementations (below 1e-4 mm at converged settings, ``tests/test_testing.py``).
 """
@@ -41,7 +41,7 @@ def synthetic_jumps(
 
     The true heights are the oracle's (:func:`granbayes.testing.simulate_height_scipy`, at
     its default converged tolerances), never the fitting kernel's. The rows and the random
-    draws are those of :func:`granbayes._synthetic.make_jumps` with the same arguments (loop
+    draws are those of :func:`granbayes.make_jumps` with the same arguments (loop
     order phi, frequency, command, trial; one ``numpy.random.Generator`` seeded with
     ``seed``), so a table is fixed by its arguments. Cost: the oracle's, about 40-110 ms per
     cell.
