@@ -1069,6 +1069,7 @@ def _add_sbc_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--replicates", type=int, required=True, help="number of SBC replicates (fits)"
     )
+    _add_kinds_argument(parser)
     parser.add_argument(
         "--rank-draws",
         type=int,
@@ -1103,7 +1104,6 @@ def _add_sbc_arguments(parser: argparse.ArgumentParser) -> None:
 def run_sbc_command(args: argparse.Namespace) -> int:
     """``granbayes sbc``: simulation-based calibration of fit as a Dask campaign."""
     from ._fitting import FitSettings
-    from ._measurements import load_jumps
     from ._priors import load_priors
     from ._sampler import SamplerSettings
     from .campaign import CampaignError
@@ -1134,7 +1134,9 @@ def run_sbc_command(args: argparse.Namespace) -> int:
     if not args.connect_timeout > 0:
         raise UsageError(f"--connect-timeout {args.connect_timeout}: must be > 0")
     experiment = load_experiment(args.data)
-    design = load_jumps(args.data, experiment)
+    design = _load_measurements(args, experiment)
+    if design.kinds == ("heights",):
+        design = design.tables["heights"]
     priors = load_priors(args.priors) if args.priors else None
     log = (lambda _m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     try:
@@ -1436,8 +1438,11 @@ SUBCOMMANDS: list[Subcommand] = [
         run_sbc_command,
         description="Per replicate: draw the force law and scatter per volume fraction from "
         "the priors, simulate the jumps of DIR's design, fit them, and rank each true value "
-        "among the posterior draws. Replicates run on Dask (a local cluster, or --scheduler), "
-        "each result written as it finishes (--resume continues a killed run). Writes "
+        "among the posterior draws. With tracked jumps or intrusion tests in DIR (--data), "
+        "every kind's noise is drawn from its prior too and the independent oracle simulates "
+        "every measurement: the calibration of the joint fit. Replicates run on Dask (a local "
+        "cluster, or --scheduler), each result written as it finishes (--resume continues a "
+        "killed run). Writes "
         "OUT/ranks.csv, OUT/summary.json, OUT/summary.md and OUT/sbc_ecdf.png.",
     ),
     Subcommand(

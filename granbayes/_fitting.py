@@ -59,6 +59,7 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 import xarray as xr
+from scipy import optimize
 
 from . import _datatree as gdt
 from . import stats
@@ -389,11 +390,18 @@ def _find_starts_many(
     n_ensembles: int,
     n_walkers: Sequence[int],
     warms: Sequence[np.ndarray | None],
+    start: str = "search",
+    mode_gap: float = 5.0,
+    notes: dict[int, list[str]] | None = None,
 ) -> list[list[np.ndarray]]:
     """:func:`find_starts` for several models at once, their simulations in one batch.
 
     Each model draws from its own generator in the order :func:`find_starts` does, so its
-    starts are those of :func:`find_starts` alone.
+    starts are those of :func:`find_starts` alone. ``start`` is
+    :attr:`SamplerSettings.start`: with ``laplace`` (or ``auto`` and measurements beyond
+    heights) each ensemble's point is polished and its walkers drawn from the Laplace
+    approximation there (:func:`_laplace_starts`; ``mode_gap`` as the sampler's, and what
+    it did is appended to ``notes[model index]``).
     """
     k = len(models)
     ndims = [m.ndim for m in models]
@@ -444,6 +452,8 @@ def _find_starts_many(
             x[i][better] = props[i][better, j[better]]
             f[i][better] = f_prop[better, j[better]]
             scale[i][~better] *= 0.5
+    laplace = [i for i in range(k) if _uses_laplace(models[i], start)]
+    drawn = _laplace_starts(models, rngs, x, n_walkers, laplace, warms, mode_gap, notes)
     out = []
     for i, model in enumerate(models):
         lo, hi = bounds[i]
@@ -451,6 +461,9 @@ def _find_starts_many(
         rng, nw, ndim = rngs[i], n_walkers[i], ndims[i]
         starts = []
         for e in range(n_ensembles):
+            if (i, e) in drawn:
+                starts.append(drawn[i, e])
+                continue
             if e == 0 and warms[i] is not None:
                 warm = warms[i]
                 pick = rng.choice(len(warm), size=nw, replace=len(warm) < nw)
@@ -464,6 +477,320 @@ def _find_starts_many(
                 pos = np.concatenate([pos, ball[np.isfinite(model.log_prior(ball))]])
             starts.append(pos[:nw])
         out.append(starts)
+    return out
+
+
+#: Evaluations per dimension that Powell's polish of a Laplace start may spend.
+_POLISH_EVALS = 400
+
+#: Powell's ``xtol`` [sampling coordinates] and ``ftol`` [relative] in that polish: loose,
+#: as L-BFGS-B finishes the climb.
+_POWELL_TOL = (1e-3, 1e-7)
+
+#: The local optimisers that polish a Laplace start, in turn (:func:`_laplace_starts`).
+_POLISH: tuple[str, ...] = ("powell", "lbfgs")
+
+#: Largest standard deviation of a Laplace start, as a fraction of the prior's width in
+#: the sampling coordinate (a flat or non-concave direction starts this wide).
+_LAPLACE_MAX_SD = 0.05
+
+
+def _uses_laplace(model: JumpModel, start: str) -> bool:
+    """Whether ``model``'s ensembles start from a Laplace approximation."""
+    if start == "auto":
+        return any(block.kind != "heights" for block in model.blocks)
+    return start == "laplace"
+
+
+def _log_probs(models: Sequence[JumpModel], groups: Mapping[int, list[np.ndarray]]):
+    """Log-posterior of point groups per model index, one simulator call for all."""
+    order = list(groups)
+    evs = evaluate_models([models[i] for i in order], [np.array(groups[i]) for i in order])
+    return {i: ev.log_prob for i, ev in zip(order, evs, strict=True)}
+
+
+def _hessian_points(x: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """``x``, ``x +/- h_i e_i`` and ``x +/- h_i e_i +/- h_j e_j`` (i < j): central differences."""
+    d = len(x)
+    pts = [x]
+    for i in range(d):
+        for sign in (1.0, -1.0):
+            p = x.copy()
+            p[i] += sign * h[i]
+            pts.append(p)
+    for i in range(d):
+        for j in range(i + 1, d):
+            for si, sj in ((1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)):
+                p = x.copy()
+                p[i] += si * h[i]
+                p[j] += sj * h[j]
+                pts.append(p)
+    return np.array(pts)
+
+
+def _hessian(values: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The Hessian from the values at :func:`_hessian_points` (NaN where not finite)."""
+    d = len(h)
+    f0, k = values[0], 1 + 2 * d
+    H = np.empty((d, d))
+    for i in range(d):
+        H[i, i] = (values[1 + 2 * i] - 2.0 * f0 + values[2 + 2 * i]) / h[i] ** 2
+    for i in range(d):
+        for j in range(i + 1, d):
+            fpp, fpm, fmp, fmm = values[k : k + 4]
+            k += 4
+            H[i, j] = H[j, i] = (fpp - fpm - fmp + fmm) / (4.0 * h[i] * h[j])
+    H[~np.isfinite(H)] = np.nan
+    return H
+
+
+def _laplace_cov(H: np.ndarray, width: np.ndarray) -> np.ndarray:
+    """Covariance of the Laplace approximation, every sd at most ``_LAPLACE_MAX_SD`` width.
+
+    In coordinates scaled by the prior's width, the precision ``-H`` is made symmetric
+    positive definite by raising its eigenvalues to ``1 / _LAPLACE_MAX_SD^2`` (a direction
+    that is flat, not concave, or unmeasurable because a difference left the support, starts
+    that wide instead of nowhere or everywhere).
+    """
+    d = len(width)
+    P = -np.nan_to_num(H, nan=0.0) * np.outer(width, width)
+    bad = np.isnan(np.diag(H))
+    P[bad, :] = 0.0
+    P[:, bad] = 0.0
+    lam, V = np.linalg.eigh(0.5 * (P + P.T))
+    lam = np.maximum(lam, 1.0 / _LAPLACE_MAX_SD**2)
+    cov_scaled = (V / lam) @ V.T
+    return cov_scaled * np.outer(width, width) + 1e-300 * np.eye(d)
+
+
+#: Rounds of the batched evolution strategy before a Laplace start's polish.
+_EVOLVE_ROUNDS = 40
+
+
+def _evolve(
+    models: Sequence[JumpModel],
+    rngs: Sequence[np.random.Generator],
+    bounds: Mapping[int, np.ndarray],
+    points: dict[tuple[int, int], np.ndarray],
+) -> None:
+    """Move every ``points[(i, e)]`` uphill by a (1+24) evolution strategy, in place.
+
+    All points' proposals are one simulator call per round. The step grows by 1.5 after a
+    success (to at most a quarter of the prior's width) and shrinks by 0.6 after a
+    failure (the search of :func:`find_starts` only shrinks, and stalls where a narrow
+    posterior needs long moves along a ridge: 68-530 nats below the mode on a tracked jump,
+    where a local optimiser from there is lost).
+    """
+    pairs = list(points)
+    n_prop = 24
+    scale = {p: 0.05 * (bounds[p[0]][1] - bounds[p[0]][0]) for p in pairs}
+    groups: dict[int, list[np.ndarray]] = {}
+    for p in pairs:
+        groups.setdefault(p[0], []).append(points[p])
+    lps = _log_probs(models, groups)
+    seen: dict[int, int] = {}
+    value = {}
+    for p in pairs:
+        j = seen.get(p[0], 0)
+        value[p] = lps[p[0]][j]
+        seen[p[0]] = j + 1
+    for _ in range(_EVOLVE_ROUNDS):
+        groups = {}
+        props = {}
+        for p in pairs:
+            lo, hi = bounds[p[0]]
+            step = rngs[p[0]].standard_normal((n_prop, len(lo)))
+            props[p] = np.clip(points[p] + scale[p] * step, lo, hi)
+            groups.setdefault(p[0], []).extend(props[p])
+        lps = _log_probs(models, groups)
+        seen = {}
+        for p in pairs:
+            j = seen.get(p[0], 0)
+            f = lps[p[0]][j : j + n_prop]
+            seen[p[0]] = j + n_prop
+            k = int(np.argmax(f))
+            width = bounds[p[0]][1] - bounds[p[0]][0]
+            if f[k] > value[p]:
+                points[p], value[p] = props[p][k], f[k]
+                scale[p] = np.minimum(scale[p] * 1.5, 0.25 * width)
+            else:
+                scale[p] = scale[p] * 0.6
+
+
+def _value_and_gradient(model: JumpModel, lo: np.ndarray, hi: np.ndarray):
+    """``-log p`` and its central-difference gradient, the ``2 d + 1`` points in one call.
+
+    Steps of 1e-6 of the prior's width, one-sided at a bound; a component whose
+    difference leaves the support is 0.
+    """
+    h = 1e-6 * (hi - lo)
+    d = len(lo)
+
+    def fg(u: np.ndarray) -> tuple[float, np.ndarray]:
+        u = np.clip(u, lo, hi)
+        up, down = np.minimum(u + h, hi), np.maximum(u - h, lo)
+        pts = np.repeat(u[None, :], 2 * d + 1, axis=0)
+        pts[1 + 2 * np.arange(d), np.arange(d)] = up
+        pts[2 + 2 * np.arange(d), np.arange(d)] = down
+        lp = evaluate_models([model], [pts])[0].log_prob
+        if not np.isfinite(lp[0]):
+            return 1e300, np.zeros(d)
+        a, b = lp[1::2], lp[2::2]
+        ok = np.isfinite(a) & np.isfinite(b) & (up > down)
+        grad = np.where(ok, (a - b) / np.where(ok, up - down, 1.0), 0.0)
+        return -float(lp[0]), -grad
+
+    return fg
+
+
+def _laplace_starts(
+    models: Sequence[JumpModel],
+    rngs: Sequence[np.random.Generator],
+    x: Sequence[np.ndarray],
+    n_walkers: Sequence[int],
+    which: Sequence[int],
+    warms: Sequence[np.ndarray | None],
+    mode_gap: float = 5.0,
+    notes: dict[int, list[str]] | None = None,
+) -> dict[tuple[int, int], np.ndarray]:
+    """Walkers from the Laplace approximation at each ensemble's polished point.
+
+    1. **Climb.** Each ensemble's best point ``x[i][e]`` (its own prior draws, then the
+       random local search of :func:`find_starts`) is moved uphill by a batched evolution
+       strategy (:func:`_evolve`), then polished (``_POLISH``) by SciPy's Powell method
+       (one point per call) and L-BFGS-B with a batched central-difference gradient
+       (:func:`_value_and_gradient`). Measured on tracked jumps: Powell reached the best
+       mode from most points in 600-2,000 evaluations, where the batched Nelder-Mead of
+       :mod:`granbayes._search`, cheaper per evaluation, stopped two of four ensembles in
+       modes 150-300 nats worse; L-BFGS-B alone stopped after one line search from most
+       points, but after Powell it finished ridges Powell had left 140-2,900 nats below
+       the mode.
+    2. **Curvature.** The Hessian at the mode comes from central differences (steps of
+       1e-4 of the prior's width, then half of the standard deviation so found, so that
+       the curvature is measured at the posterior's own scale; a mode on a bound of the
+       prior is differenced just inside it, and its own coordinate starts at the floor
+       of :func:`_laplace_cov`).
+    3. **Walkers** are drawn from the normal with the inverse as covariance
+       (:func:`_laplace_cov`), kept inside the prior.
+
+    The ensembles stay independent (each climbs from its own point: different modes stay
+    different, for the sampler's mode checks), except that an ensemble whose climb ends
+    more than ``max(mode_gap, 3 sqrt(d / 2))`` nats below another's mode (the sampler's
+    rule for a worse-supported mode, with the spread of a d-dimensional normal's
+    log-density) starts from that mode's approximation, as the sampler's first check
+    would restart it, and ``notes`` says so. An ensemble warm-started from a parent's
+    posterior keeps its start.
+
+    Returns
+    -------
+    dict
+        ``(model index, ensemble) -> walkers (n_walkers, ndim)``, for the models ``which``.
+    """
+    pairs = [
+        (i, e) for i in which for e in range(len(x[i])) if not (e == 0 and warms[i] is not None)
+    ]
+    if not pairs:
+        return {}
+    bounds = {i: models[i].bounds_u.T for i in which}
+    points = {pair: np.clip(x[pair[0]][pair[1]], *bounds[pair[0]]) for pair in pairs}
+    _evolve(models, rngs, bounds, points)
+    modes = {}
+    for i, e in pairs:
+        lo, hi = bounds[i]
+
+        def objective(u: np.ndarray, i: int = i, lo: np.ndarray = lo, hi: np.ndarray = hi):
+            lp = evaluate_models([models[i]], [np.clip(u, lo, hi)[None, :]])[0].log_prob[0]
+            return -lp if np.isfinite(lp) else 1e300
+
+        u, value = points[i, e], objective(points[i, e])
+        for method in _POLISH:
+            if method == "powell":
+                res = optimize.minimize(
+                    objective,
+                    u,
+                    method="Powell",
+                    bounds=list(zip(lo, hi, strict=True)),
+                    options={
+                        "xtol": _POWELL_TOL[0],
+                        "ftol": _POWELL_TOL[1],
+                        "maxfev": _POLISH_EVALS * models[i].ndim,
+                    },
+                )
+            else:  # a batched central-difference gradient: one simulator call an iteration
+                res = optimize.minimize(
+                    _value_and_gradient(models[i], lo, hi),
+                    u,
+                    jac=True,
+                    method="L-BFGS-B",
+                    bounds=list(zip(lo, hi, strict=True)),
+                    options={"maxiter": 200},
+                )
+            if res.fun < value:
+                u, value = np.clip(res.x, lo, hi), float(res.fun)
+        modes[i, e] = u
+    steps = {pair: 1e-4 * (bounds[pair[0]][1] - bounds[pair[0]][0]) for pair in pairs}
+    hessians = {}
+    centre_values: dict[tuple[int, int], np.ndarray] = {}
+    for _ in range(2):  # the second pass at half the standard deviation the first found
+        groups: dict[int, list[np.ndarray]] = {}
+        where = {}
+        for pair in pairs:
+            lo, hi = bounds[pair[0]]
+            # a mode on a bound of the prior: the differences are taken just inside it
+            # (the other coordinates' curvature there)
+            centre = np.clip(modes[pair], lo + steps[pair], hi - steps[pair])
+            pts = _hessian_points(centre, steps[pair])
+            groups.setdefault(pair[0], [])
+            where[pair] = (len(groups[pair[0]]), len(pts))
+            groups[pair[0]].extend(pts)
+        lps = _log_probs(models, groups)
+        for pair in pairs:
+            lo, hi = bounds[pair[0]]
+            start, n = where[pair]
+            centre_values[pair] = lps[pair[0]][start : start + n]
+            with np.errstate(invalid="ignore"):  # a difference that left the support
+                H = _hessian(lps[pair[0]][start : start + n], steps[pair])
+            # a coordinate whose mode is on a bound of its prior has no curvature to invert
+            # (the posterior piles on the bound): it starts at the floor's width
+            edge = (modes[pair] - lo < steps[pair]) | (hi - modes[pair] < steps[pair])
+            H[edge, :] = np.nan
+            H[:, edge] = np.nan
+            hessians[pair] = H
+            curv = -np.diag(H)
+            sd = np.where(curv > 0, 1.0 / np.sqrt(np.where(curv > 0, curv, 1.0)), np.inf)
+            steps[pair] = np.clip(0.5 * sd, 1e-7 * (hi - lo), 1e-2 * (hi - lo))
+    # an ensemble whose polish ended far below another's mode is in a worse-supported
+    # region by the sampler's own rule (its first check would restart it from the best
+    # ensemble): it starts from the best mode's approximation now, and the run says so
+    heights = {pair: float(values[0]) for pair, values in centre_values.items()}
+    source = {pair: pair for pair in pairs}
+    for i in which:
+        mine = [pair for pair in pairs if pair[0] == i]
+        if len(mine) < 2:
+            continue
+        best = max(mine, key=lambda pair: heights[pair])
+        gap = max(mode_gap, 3.0 * np.sqrt(models[i].ndim / 2.0))
+        low = [pair for pair in mine if heights[pair] < heights[best] - gap]
+        for pair in low:
+            source[pair] = best
+        if low and notes is not None:
+            notes.setdefault(i, []).append(
+                "start: ensemble(s) "
+                + ", ".join(f"{e} (log-probability {heights[i, e]:.1f})" for _, e in low)
+                + f" polished to points more than {gap:.1f} nats below ensemble {best[1]}'s "
+                f"mode ({heights[best]:.1f}); started from that mode's Laplace approximation"
+            )
+    out = {}
+    for i, e in pairs:
+        lo, hi = bounds[i]
+        cov = _laplace_cov(hessians[source[i, e]], hi - lo)
+        chol = np.linalg.cholesky(cov)
+        nw, model = n_walkers[i], models[i]
+        pos = np.empty((0, model.ndim))
+        while len(pos) < nw:
+            ball = modes[source[i, e]] + rngs[i].standard_normal((2 * nw, model.ndim)) @ chol.T
+            pos = np.concatenate([pos, ball[np.isfinite(model.log_prior(ball))]])
+        out[i, e] = pos[:nw]
     return out
 
 
@@ -514,13 +841,18 @@ def _run_parts(
         None if checkpoint is None else Path(checkpoint) / f"{label}.h5" for label, _, _ in specs
     ]
     fresh = [i for i, c in enumerate(checkpoints) if not (resume and c is not None and c.exists())]
+    start_notes: dict[int, list[str]] = {}
     starts = _find_starts_many(
         [models[i] for i in fresh],
         [np.random.default_rng(seeds[i]) for i in fresh],
         s.n_ensembles,
         [s.walkers_for(models[i].ndim) for i in fresh],
         [warms[i] for i in fresh],
+        s.start,
+        s.mode_gap,
+        start_notes,
     )
+    notes_of = {i: start_notes.get(j, []) for j, i in enumerate(fresh)}
     initial = {i: st for i, st in zip(fresh, starts, strict=True)}
     runs = []
     for i, (label, model, _) in enumerate(specs):
@@ -536,6 +868,7 @@ def _run_parts(
                 resume=resume,
                 fingerprint=_fingerprint(model, configs[i], seeds[i]),
                 progress=None if progress is None else _labelled(progress, label),
+                notes=tuple(notes_of.get(i, ())),
             )
         )
     sampled = run_side_by_side(_sampling_fn(models), runs, s)

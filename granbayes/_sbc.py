@@ -13,6 +13,13 @@ Is the posterior that ``fit`` reports calibrated? Per replicate (Talts et al. 20
 4. rank each true value among ``n_rank_draws`` posterior draws, thinned to about one per
    autocorrelation time so that they are roughly independent.
 
+A design of several kinds (jump heights with tracked jumps and/or intrusion tests: the
+joint fit) is calibrated the same way, with every kind's noise parameters drawn from their
+priors too, and its replicates made by the independent oracle
+(:func:`draw_measurements`); a design of heights alone keeps the kernel's replicates of
+step 2 (:func:`draw_replicate`, fast: the simulator a fit already trusts, checked against
+the oracle by the tests).
+
 If the fit is calibrated every rank is uniform on ``0..n_rank_draws``. The replicates run
 as tasks of a campaign (:mod:`granbayes.campaign`) on Dask, resumable, each with a seed
 spawned from the master seed. Outputs in ``OUT``: ``ranks.csv`` (one row per replicate,
@@ -40,6 +47,7 @@ from ._deprecated import renamed_keyword
 from ._experiment import Experiment
 from ._files import atomic_path, write_json, write_text
 from ._fitting import FitPart, FitSettings, data_hash, fit, part_models
+from ._measurements import Measurements
 from ._priors import Prior, default_priors
 from ._provenance import machine, package_versions
 from .campaign import (
@@ -54,6 +62,7 @@ from .forces import TERMS
 
 __all__ = [
     "SBCResult",
+    "draw_measurements",
     "draw_replicate",
     "rank_draws",
     "replicate_ranks",
@@ -161,6 +170,107 @@ def draw_replicate(
     return table, truths
 
 
+def _draw_prior(model, rng: np.random.Generator) -> np.ndarray:
+    """A prior draw of one run's coordinates whose jumps all finish."""
+    for _ in range(_MAX_PRIOR_TRIES):
+        u = model.sample_prior(rng, 1)
+        sim, ok = model.predict(u)
+        if ok[0] and np.all(np.isfinite(sim)):
+            return u
+    raise RuntimeError(
+        f"at phi={float(model.phis[0]):g} none of {_MAX_PRIOR_TRIES} prior draws gave jumps "
+        "that all finish; narrow the priors"
+    )
+
+
+def draw_measurements(
+    experiment: Experiment,
+    design: Measurements,
+    settings: FitSettings,
+    priors: Mapping[str, Prior],
+    rng: np.random.Generator,
+) -> tuple[Measurements, dict[float, dict[str, float]]]:
+    """Draw every parameter from the priors and simulate a design of several kinds.
+
+    The replicate of a joint fit (jump heights, tracked jumps, intrusion tests): per
+    volume fraction, the force law, the robot's calibrated parameters and every noise
+    parameter of every kind (``sigma_mm``, ``frame_sd_*_mm``, ``frame_tau_ms``,
+    ``force_sd_N``) are drawn from the priors the fit uses (a draw whose jumps do not all
+    finish is drawn again, as in :func:`draw_replicate`), and the measurements are
+    simulated by the independent oracle
+    (:func:`granbayes.testing.replicate_measurements`: its heights, its trajectories at
+    every frame time shifted by a clock offset drawn from the likelihood's uniform prior,
+    its intrusion forces, with the observation models' noise). Data from an
+    implementation that shares no numerical code with the fitting kernel: an error in
+    the kernel's dense output, in the offset's integration or in the whitening of the
+    frame noise shows up as miscalibration instead of being reproduced by the data.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        Robot and command defaults.
+    design : Measurements
+        The experiment's measurements (:func:`granbayes.load_measurements`); their values
+        are replaced.
+    settings : FitSettings
+        Terms, noise family and fixed parameters (``per_phi`` mode).
+    priors : mapping of str to Prior
+        The priors to draw from.
+    rng : numpy.random.Generator
+        Source of randomness (the parameters, then the oracle's noise).
+
+    Returns
+    -------
+    measurements : Measurements
+        SYNTHETIC measurements of the design.
+    truths : dict
+        phi -> parameter name -> true value (the sampled parameters: force law [SI], the
+        robot's calibrated parameters, then each kind's noise parameters).
+
+    Raises
+    ------
+    RuntimeError
+        If no prior draw in 200 gives jumps that all finish at some volume fraction.
+    """
+    from .testing import replicate_measurements  # the oracle makes the data
+
+    drawn = dataclasses.replace(settings, calibration="sample")
+    truths: dict[float, dict[str, float]] = {}
+    oracle_truth: dict[float, dict[str, float]] = {}
+    windows: dict[Any, float] = {}
+    for _, model, _units in part_models(experiment, design, drawn, priors):
+        phi = float(model.phis[0])
+        u = _draw_prior(model, rng)
+        values = model.parameter_values(u)
+        law = model.law_values(u, model.phis)
+        names = dict.fromkeys(
+            [*model.parameters, *model.calibrated, *(c.parameter for c in model.coordinates)]
+        )
+        truths[phi] = {name: float(values[name][0, 0]) for name in names}
+        oracle_truth[phi] = {
+            **{name: float(value) for name, value in model.fixed.items()},
+            **{name: float(value[0, 0]) for name, value in law.items()},
+            **{name: truths[phi][name] for name in names if name not in law},
+        }
+        for block in model.blocks:
+            if block.kind == "trajectories":
+                windows.update(block.offset_windows_s())
+    tables = replicate_measurements(
+        experiment,
+        design.tables,
+        oracle_truth,
+        rng=rng,
+        offset_window_s=windows,
+        noise=settings.noise,
+        nu=settings.nu,
+    )
+    kept = {
+        kind: table.drop(columns=[c for c in table.columns if c.startswith("true_")])
+        for kind, table in tables.items()
+    }
+    return Measurements(kept, design.unit_columns), truths
+
+
 def rank_draws(part: FitPart, n_rank_draws: int) -> tuple[np.ndarray, bool]:
     """``n_rank_draws`` roughly independent posterior draws of one ensemble run.
 
@@ -204,7 +314,7 @@ def rank_draws(part: FitPart, n_rank_draws: int) -> tuple[np.ndarray, bool]:
 
 def replicate_ranks(
     experiment: Experiment,
-    design: pd.DataFrame,
+    design: pd.DataFrame | Measurements,
     settings: FitSettings,
     priors: Mapping[str, Prior],
     n_rank_draws: int,
@@ -217,7 +327,8 @@ def replicate_ranks(
     Parameters
     ----------
     experiment, design, settings, priors
-        As :func:`draw_replicate`.
+        As :func:`draw_replicate` (a jumps table) or :func:`draw_measurements`
+        (measurements of several kinds).
     n_rank_draws : int
         Posterior draws each true value is ranked among.
     replicate : int
@@ -234,16 +345,15 @@ def replicate_ranks(
         [steps], ``n_steps``, ``independent_draws``.
     """
     truth_seed, fit_seed = spawn_seeds(seed, 2)
-    table, truths = draw_replicate(
-        experiment, design, settings, priors, np.random.default_rng(truth_seed)
-    )
+    draw = draw_measurements if isinstance(design, Measurements) else draw_replicate
+    table, truths = draw(experiment, design, settings, priors, np.random.default_rng(truth_seed))
     result = fit(experiment, table, settings, seed=fit_seed, priors=priors)
     rows = []
     for part in result.parts:
         phi = float(part.model.phis[0])
         draws_u, independent = rank_draws(part, n_rank_draws)
         values = part.model.parameter_values(draws_u)
-        for name in (*part.model.parameters, *part.model.calibrated, "sigma_mm"):
+        for name in truths[phi]:
             draws = values[name][:, 0]
             true = truths[phi][name]
             rows.append(
@@ -273,7 +383,9 @@ def _summary_markdown(summary: Mapping[str, Any]) -> str:
     lines = [
         f"# Simulation-based calibration of `fit` ({', '.join(summary['terms'])})",
         "",
-        f"Data: SYNTHETIC replicates of the design of `{summary['data_source']}`; "
+        f"Data: SYNTHETIC replicates of the design of `{summary['data_source']}` "
+        f"({', '.join(summary.get('kinds', ['heights']))}; made by "
+        f"{summary.get('generator', 'the fitting kernel')}); "
         f"{summary['n_replicates_ok']} of {summary['n_replicates']} replicates finished, "
         f"master seed {summary['seed']}, ranks among {summary['n_rank_draws']} posterior "
         "draws. A calibrated fit gives uniformity p-values that are not small and "
@@ -312,7 +424,7 @@ def _summary_markdown(summary: Mapping[str, Any]) -> str:
 @renamed_keyword("config")
 def run_sbc(
     experiment: Experiment,
-    design: pd.DataFrame,
+    design: pd.DataFrame | Measurements,
     out: str | Path,
     *,
     settings: FitSettings | None = None,
@@ -334,8 +446,12 @@ def run_sbc(
     ----------
     experiment : Experiment
         Robot, command defaults and ``phi_c``.
-    design : pandas.DataFrame
-        The experiment's jumps (:func:`granbayes.load_jumps`): which jumps to simulate.
+    design : pandas.DataFrame or Measurements
+        The experiment's jumps (:func:`granbayes.load_jumps`): which jumps to simulate,
+        by the fitting kernel (:func:`draw_replicate`); or its measurements of several
+        kinds (:func:`granbayes.load_measurements`): jumps, tracked jumps and intrusion
+        tests, simulated by the independent oracle with every kind's noise drawn from its
+        prior (:func:`draw_measurements`), for the calibration of a joint fit.
     out : str or Path
         Output folder (built as ``OUT.partial``; replaced only at the end).
     settings : FitSettings, optional
@@ -392,21 +508,33 @@ def run_sbc(
             f"n_rank_draws must be in [1, walkers x ensembles x n_draws = {kept}], "
             f"got {n_rank_draws}"
         )
-    if len(design) == 0:
+    if isinstance(design, Measurements) and design.kinds == ("heights",):
+        design = design.tables["heights"]  # heights alone: the kernel's replicates, as ever
+    n_units = design.n_units if isinstance(design, Measurements) else len(design)
+    if n_units == 0:
         raise ValueError("design has no jumps")
     # what the workers need; thread counts do not change results
     settings = dataclasses.replace(settings, n_threads=None, n_prior_draws=0)
     priors = dict(priors if priors is not None else default_priors())
-    design = design.reset_index(drop=True)
+    if not isinstance(design, Measurements):
+        design = design.reset_index(drop=True)
     used = {*(p.name for t in settings.terms for p in TERMS[t].parameters), "sigma_mm"}
+    described = {k: dataclasses.asdict(v) for k, v in sorted(priors.items()) if k in used}
+    if isinstance(design, Measurements):  # and every kind's noise parameters, as fitted
+        for _, model, _ in part_models(experiment, design, settings, priors):
+            for c in model.coordinates:
+                described.setdefault(c.parameter, dataclasses.asdict(c.prior))
     description = {
         "kind": "granbayes._sbc",
         "data_sha256": data_hash(experiment, design),
         "config": settings.to_dict(),
-        "priors": {k: dataclasses.asdict(v) for k, v in sorted(priors.items()) if k in used},
+        "priors": dict(sorted(described.items())),
         "seed": int(seed),
         "n_rank_draws": int(n_rank_draws),
     }
+    if isinstance(design, Measurements):
+        description["kinds"] = list(design.kinds)
+        description["generator"] = "granbayes.testing.replicate_measurements (the oracle)"
     if experiment.uncertainty:  # the robot's calibration the truths are drawn from
         description["calibration_sd"] = dict(sorted(experiment.uncertainty.items()))
     if experiment.phi_sd > 0 and log is not None:
@@ -466,6 +594,10 @@ def _write_outputs(
         "granbayes_version": package_versions()["granbayes"],
         "data_source": data_source,
         "data_sha256": description["data_sha256"],
+        "kinds": description.get("kinds", ["heights"]),
+        "generator": description.get(
+            "generator", "the fitting kernel (the likelihood's own simulator; heights only)"
+        ),
         "terms": list(settings.terms),
         "config": settings.to_dict(),
         "priors": description["priors"],

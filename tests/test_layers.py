@@ -108,7 +108,10 @@ def test_the_report_only_writes() -> None:
 
 def test_the_oracle_shares_no_numerical_code_with_the_kernel() -> None:
     """The test kit's data makers never reach the compiled kernel or the simulator."""
-    makers = {f"granbayes.testing.{m}" for m in ("_oracle", "_effects", "_synthetic", "_lab")}
+    makers = {
+        f"granbayes.testing.{m}"
+        for m in ("_oracle", "_effects", "_synthetic", "_lab", "_replicate")
+    }
     for module in makers:
         targets = _module_imports()[module]
         inside = {t for t in targets if t.startswith("granbayes.testing")}
@@ -118,7 +121,11 @@ def test_the_oracle_shares_no_numerical_code_with_the_kernel() -> None:
         assert not reach & {"_kernel", "_simulator", "_synthetic"}, module
 
 
-def test_the_package_imports_the_test_kit_only_for_the_verdict_study() -> None:
-    """Fits, diagnoses and reports never depend on the test kit; its data maker does."""
+def test_the_package_imports_the_test_kit_only_for_the_verdict_study_and_joint_sbc() -> None:
+    """Fits, diagnoses and reports never depend on the test kit; its data makers do.
+
+    The verdict study makes its data sets with the oracle, and the simulation-based
+    calibration of a joint fit its replicates (``_sbc.draw_measurements``).
+    """
     users = {u for u, d in _unit_graph().items() if "testing" in d and u != "testing"}
-    assert users == {"calibration"}
+    assert users == {"calibration", "_sbc"}

@@ -24,13 +24,23 @@ import pandas as pd
 import pytest
 from distributed import Client
 
-from granbayes import load_experiment, load_jumps
+from granbayes import default_priors, load_experiment, load_jumps, load_measurements
 from granbayes._cli import EXIT_INPUT, EXIT_OK, main
-from granbayes._fitting import FitSettings
+from granbayes._fitting import FitSettings, part_models
 from granbayes._sampler import SamplerSettings
-from granbayes._sbc import run_sbc
-from granbayes.campaign import ClusterSettings
+from granbayes._sbc import draw_measurements, run_sbc
+from granbayes.campaign import ClusterSettings, spawn_seeds
 from granbayes.stats import summarize_ranks
+from granbayes.testing import (
+    LabDesign,
+    intrusion_force_scipy,
+    replicate_measurements,
+    simulate_height_scipy,
+    simulate_trajectory_scipy,
+    synthetic_lab_data,
+    write_lab_experiment,
+)
+from granbayes.testing._replicate import _ou
 
 BIN = Path(sys.executable).parent
 #: Capped fits for machinery tests (not converged; not a calibration study).
@@ -338,3 +348,190 @@ def test_bad_sbc_arguments_one_line_and_nothing_written(
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
     assert not out.exists() and not (tmp_path / "sbc.partial").exists()
+
+
+# ----------------------------------------------------------------------------------------
+# (f) the joint fit: replicates of every kind of measurement, made by the oracle
+# ----------------------------------------------------------------------------------------
+#: A tiny design of every kind: one jump filmed at 200 frames/s, one intrusion test.
+JOINT_DESIGN = LabDesign(
+    phis=(0.612,),
+    commands=("single",),
+    trials=2,
+    tracked_trials=1,
+    fps=200.0,
+    track_from_s=-0.01,
+    track_after_end_s=0.05,
+    intrusion_speeds_mm_s=(100.0,),
+    depth_step_mm=2.0,
+    depth_max_mm=20.0,
+)
+JOINT_TRUTH = {
+    "k": 3000.0,
+    "c_d": 20.0,
+    "kappa": 1.0,
+    "sigma_mm": 1.5,
+    "frame_sd_foot_mm": 0.3,
+    "frame_sd_rod_mm": 0.2,
+    "frame_tau_ms": 4.0,
+    "force_sd_N": 0.5,
+}
+
+
+@pytest.fixture(scope="module")
+def joint_design(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An experiment folder with jumps, a tracked jump and an intrusion test (SYNTHETIC)."""
+    data = synthetic_lab_data({"k": 3000.0}, seed=3, design=JOINT_DESIGN)
+    return write_lab_experiment(tmp_path_factory.mktemp("joint"), data, truth_file=False)
+
+
+def test_replicates_are_the_oracle_plus_the_observation_noise(joint_design: Path) -> None:
+    """Every value is the oracle's at the truth, and the noise is each kind's model."""
+    experiment = load_experiment(joint_design)
+    tables = load_measurements(joint_design, experiment).tables
+    window = 3e-3
+    jump = tables["trajectories"]["jump"].iloc[0]  # as loaded (a label, not a number)
+    out = replicate_measurements(
+        experiment,
+        tables,
+        {0.612: JOINT_TRUTH},
+        rng=np.random.default_rng(1),
+        offset_window_s={jump: window},
+    )
+    heights = out["heights"]
+    for _, row in heights.iterrows():
+        expected = simulate_height_scipy(
+            str(row["command"]), 0.612, {"k": 3000.0, "c_d": 20.0, "kappa": 1.0}
+        )
+        assert row["true_height_mm"] == pytest.approx(expected, abs=1e-9)
+    assert not np.allclose(heights["height_mm"], heights["true_height_mm"])
+    frames = out["trajectories"]
+    offset = float(frames["true_offset_s"].iloc[0])
+    assert 0.0 < abs(offset) <= window and (frames["true_offset_s"] == offset).all()
+    oracle = simulate_trajectory_scipy(
+        "single",
+        0.612,
+        {"k": 3000.0, "c_d": 20.0, "kappa": 1.0},
+        frames["t_s"].to_numpy() + offset,  # frame i shows the robot at t_i + offset
+    )
+    np.testing.assert_allclose(frames["true_x_foot_mm"], oracle.x_foot_mm, atol=1e-9)
+    np.testing.assert_allclose(frames["true_x_rod_mm"], oracle.x_rod_mm, atol=1e-9)
+    tests = out["intrusions"]
+    force = intrusion_force_scipy(
+        0.612, {"k": 3000.0, "c_d": 20.0, "kappa": 1.0}, tests["depth_mm"].to_numpy(), 100.0
+    )
+    np.testing.assert_allclose(tests["true_force_N"], force, atol=1e-9)
+    # the same seed gives the same replicate; the design's other columns are kept
+    again = replicate_measurements(
+        experiment,
+        tables,
+        {0.612: JOINT_TRUTH},
+        rng=np.random.default_rng(1),
+        offset_window_s={jump: window},
+    )
+    for kind in out:
+        pd.testing.assert_frame_equal(out[kind], again[kind])
+        kept = [
+            c
+            for c in tables[kind].columns
+            if c not in ("height_mm", "x_foot_mm", "x_rod_mm", "force_N")
+        ]
+        pd.testing.assert_frame_equal(out[kind][kept], tables[kind][kept])
+    with pytest.raises(KeyError, match="frame_tau_ms"):
+        replicate_measurements(
+            experiment,
+            tables,
+            {0.612: {k: v for k, v in JOINT_TRUTH.items() if k != "frame_tau_ms"}},
+            rng=np.random.default_rng(1),
+            offset_window_s={jump: window},
+        )
+    with pytest.raises(KeyError, match="offset"):
+        replicate_measurements(
+            experiment, tables, {0.612: JOINT_TRUTH}, rng=np.random.default_rng(1)
+        )
+
+
+def test_frame_noise_is_a_stationary_ornstein_uhlenbeck_process() -> None:
+    """Marginal sd and the correlation exp(-gap / tau) at uneven frame gaps.
+
+    20,000 frames: the sd's relative SE is about 1/sqrt(2 n_eff) ~ 1.2% here (n_eff ~
+    n (1 - rho) / (1 + rho) for the regular part); tolerances are 5 SE.
+    """
+    rng = np.random.default_rng(7)
+    gaps = np.where(np.arange(20_000) % 2 == 0, 1e-3, 3e-3)  # two frame spacings
+    t = np.cumsum(gaps)
+    sd, tau = 0.4, 2e-3
+    e = _ou(rng, t, sd, tau)
+    assert np.std(e) == pytest.approx(sd, rel=0.06)
+    for gap in (1e-3, 3e-3):
+        pick = np.flatnonzero(np.isclose(np.diff(t), gap)) + 1
+        rho = np.corrcoef(e[pick], e[pick - 1])[0, 1]
+        assert rho == pytest.approx(np.exp(-gap / tau), abs=0.05)
+    # whitened, the residuals are independent standard normal
+    rho_all = np.exp(-np.diff(t) / tau)
+    white = (e[1:] - rho_all * e[:-1]) / (sd * np.sqrt(1 - rho_all**2))
+    assert np.std(white) == pytest.approx(1.0, abs=0.03)
+    assert abs(np.corrcoef(white[1:], white[:-1])[0, 1]) < 0.03
+
+
+def test_a_joint_replicate_draws_every_parameter_from_the_priors(joint_design: Path) -> None:
+    """Every sampled parameter of every kind is drawn inside its prior; every value is new."""
+    experiment = load_experiment(joint_design)
+    design = load_measurements(joint_design, experiment)
+    priors = default_priors()
+    replicate, truths = draw_measurements(
+        experiment, design, FAST_CONFIG, priors, np.random.default_rng(8)
+    )
+    assert replicate.kinds == design.kinds
+    expected = ["k", "c_d", "sigma_mm", "frame_sd_foot_mm", "frame_sd_rod_mm"]
+    expected += ["frame_tau_ms", "force_sd_N"]
+    assert list(truths[0.612]) == expected
+    (_, model, _), *_ = part_models(experiment, design, FAST_CONFIG, priors)
+    for c in model.coordinates:
+        lo, hi = c.prior.bounds_u
+        assert lo <= c.prior.to_u(truths[0.612][c.parameter]) <= hi, c.name
+    for kind, column in (("heights", "height_mm"), ("trajectories", "x_foot_mm")):
+        new, old = replicate.tables[kind][column], design.tables[kind][column]
+        assert len(new) == len(old) and not np.allclose(new, old)
+        assert not any(c.startswith("true_") for c in replicate.tables[kind].columns)
+    assert not np.allclose(
+        replicate.tables["intrusions"]["force_N"], design.tables["intrusions"]["force_N"]
+    )
+
+
+@pytest.mark.slow  # two capped joint fits on a Dask worker (~35 s)
+def test_sbc_of_a_joint_fit_draws_every_kinds_noise_and_ranks_it(
+    tmp_path: Path, joint_design: Path
+) -> None:
+    """``granbayes sbc`` on a folder of every kind: oracle replicates, every noise ranked."""
+    out = tmp_path / "sbc"
+    code = main(
+        [
+            *["sbc", str(joint_design), "--out", str(out), "--replicates", "2", "--seed", "4"],
+            *FAST,
+            *["--workers", "1", "--threads", "1"],
+        ]
+    )
+    assert code == EXIT_OK
+    ranks = pd.read_csv(out / "ranks.csv")
+    expected = {"k", "c_d", *PARAMETERS} | {
+        "frame_sd_foot_mm",
+        "frame_sd_rod_mm",
+        "frame_tau_ms",
+        "force_sd_N",
+    }
+    assert set(ranks["parameter"]) == expected
+    assert len(ranks) == 2 * len(expected)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["kinds"] == ["heights", "trajectories", "intrusions"]
+    assert "oracle" in summary["generator"]
+    assert "frame_tau_ms" in summary["priors"]
+    # the same replicate's truths are what draw_measurements gives for its seed
+    experiment = load_experiment(joint_design)
+    design = load_measurements(joint_design, experiment)
+    truth_seed, _ = spawn_seeds(spawn_seeds(4, 2)[0], 2)
+    _, truths = draw_measurements(
+        experiment, design, FAST_CONFIG, default_priors(), np.random.default_rng(truth_seed)
+    )
+    first = ranks[ranks["replicate"] == 0].set_index("parameter")["true_value"]
+    assert first.to_dict() == pytest.approx(truths[0.612])

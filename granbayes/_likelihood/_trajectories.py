@@ -278,6 +278,21 @@ class TrajectoryBlock(Block):
         other._coords = self._coords
         return other
 
+    def offset_windows_s(self) -> dict:
+        """Half-width [s] of each tracked jump's clock-offset prior, by its ``jump`` value.
+
+        The offset is uniform on ``+/- (K dt + h)`` (module docstring): what a simulation
+        of this model's prior predictive must draw.
+
+        Returns
+        -------
+        dict
+            ``jump`` value -> half-width [s].
+        """
+        ids = self._table["jump"].to_numpy()[self._order[self._starts]]
+        half = self.k_max * self._dt + 0.5 * self._step
+        return {ids[j]: float(half[j]) for j in range(self._n_units)}
+
     def jump_request(self) -> JumpRequest:
         """One simulation per tracked jump, read at its frame grid."""
         return JumpRequest(self._unit_phi, self._programs, self._grids)

@@ -2,9 +2,11 @@
 
 This module is public so that tests, benchmarks and other implementations of the model can
 check themselves against one reference (like ``arviz_base.testing``). The package imports it
-in one place only: the verdict study (``granbayes.calibration``) makes its data sets with the
-oracle. The oracle is the source of the data that test the fitting code: the compiled kernel
-never makes its own test data (``tests/test_layers.py`` checks who imports what). It holds:
+in two places only: the verdict study (``granbayes.calibration``) makes its data sets with
+the oracle, and the simulation-based calibration of a joint fit (``granbayes sbc`` on
+several kinds of measurement) its replicates. The oracle is the source of the data that
+test the fitting code: the compiled kernel never makes its own test data
+(``tests/test_layers.py`` checks who imports what). It holds:
 
 * the oracle, a ``scipy.integrate.solve_ivp`` implementation of ``docs/physics-model.md``
   that shares no numerical code with the compiled integrator (``granbayes._kernel``):
@@ -24,6 +26,10 @@ never makes its own test data (``tests/test_layers.py`` checks who imports what)
   tests with force noise, a robot off its nominal values, beds whose true phi scatters,
   hidden effects), designed by a :class:`LabDesign` and returned as :class:`LabData`;
   :func:`write_lab_experiment` writes it as an experiment folder;
+* :func:`replicate_measurements`, an experiment's own design (its jumps, tracked jumps
+  and intrusion tests) with every value simulated by the oracle from a given truth and
+  the noise of the observation models, clock offsets from the likelihood's prior: the
+  replicates of simulation-based calibration of a joint fit (``granbayes sbc``);
 * :func:`fake_fit`, a seeded fit's DataTree with every group and attribute of a real one
   (``granbayes.fit``), made without a sampler or a simulator (a linear surrogate of the
   heights), for tests of statistics, figures and reports (like ``arviz_base.testing``);
@@ -83,6 +89,7 @@ from ._oracle import (
     simulate_height_scipy,
     simulate_trajectory_scipy,
 )
+from ._replicate import replicate_measurements
 from ._synthetic import synthetic_jumps
 
 __all__ = [
@@ -102,6 +109,7 @@ __all__ = [
     "energy_test_box",
     "fake_fit",
     "intrusion_force_scipy",
+    "replicate_measurements",
     "simulate_height_scipy",
     "simulate_trajectory_scipy",
     "synthetic_jumps",
