@@ -10,6 +10,8 @@ once saved.
 
 from __future__ import annotations
 
+import math
+import textwrap
 import warnings
 from collections.abc import Mapping, Sequence
 
@@ -457,22 +459,25 @@ def plot_sbc_ecdf(
     ds = _sbc_dataset(pit, phis)
     n = ds.sizes["replicate"]
     n_phi, n_var = len(phis), len(pit)
+    # a row per parameter and a column per volume fraction; one volume fraction: 4 across
+    n_col = n_phi if n_phi > 1 else min(4, n_var)
+    n_row = math.ceil(n_var * n_phi / n_col)
     pc = azp.plot_ecdf_pit(
         xr.DataTree.from_dict({"prior_sbc": ds}),
         group="prior_sbc",
         sample_dims=["replicate"],
         envelope_prob=band_prob,
         backend="matplotlib",
-        col_wrap=n_phi,
-        figure_kwargs={"figsize": (2.8 * n_phi + 0.6, 2.3 * n_var + 0.6)},
+        col_wrap=n_col,
+        figure_kwargs={"figsize": (2.8 * n_col + 0.6, 2.3 * n_row + 0.8)},
     )
     fig = pc.viz["figure"].item()
     _draw_uniform_band(fig, n, band_prob, seed)
-    fig.suptitle(
-        (title + "\n" if title else "")
-        + f"ECDF - uniform of the normalised ranks ({n} replicates); grey: "
-        f"{band_prob:.0%} simultaneous band",
-        fontsize=9,
+    text = (title + "\n" if title else "") + (
+        f"ECDF - uniform of the normalised ranks ({n} replicates); grey: "
+        f"{band_prob:.0%} simultaneous band"
     )
+    width = max(30, int(13 * fig.get_figwidth()))  # characters of 9-pt text per line
+    fig.suptitle("\n".join(textwrap.fill(line, width) for line in text.split("\n")), fontsize=9)
     fig.tight_layout()
     return fig
