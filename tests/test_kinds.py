@@ -358,12 +358,22 @@ HIDDEN_VISCOUS = LabDesign(
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured 2026-11-27 (first completed run, 12 min): with 2 tracked jumps the "
+    "trajectories do not show viscous b = 2 N s/m by the rule either: depth + drag absorbs "
+    "it through k and c_d (3020 N/m, 23.1 kg/m against 3000, 20; frame noise 0.21 mm, "
+    "recovered), no misfit cell, viscous's screening gain +3.3 nats < 4 (+3.1 fitted, "
+    "b = 1.6); the design lacks power, not the likelihood",
+)
 def test_hidden_effect_heights_barely_show_is_found_in_the_trajectories(tmp_path: Path) -> None:
     """SYNTHETIC oracle data (seed 21) with a hidden viscous force: ``diagnose`` on the
     jump heights alone does not name it (the effect is a quarter of the heights' scatter);
-    on heights and tracked jumps it finds the misfit in the trajectories and names
-    ``viscous``. Candidates are limited to viscous, stiffening and added mass to keep the
-    test to a few minutes."""
+    on heights and tracked jumps it should find the misfit in the trajectories and name
+    ``viscous``. Candidates are limited to viscous, stiffening and added mass. It does not
+    (the xfail's reason): one filmed trial per command is too little; a design that films
+    every trial (3x the frames: about 9 nats expected from the 3.1 measured) is the next
+    test to run."""
     from granbayes._criticism import DiagnoseSettings, diagnose
 
     truth = {"k": 3000.0, "c_d": 20.0, "b": 2.0}

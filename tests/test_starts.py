@@ -86,7 +86,7 @@ def test_auto_start_is_laplace_with_tracked_jumps_or_intrusions_only(folder: Pat
         SamplerSettings(start="mode")
 
 
-@pytest.mark.long
+@pytest.mark.slow  # a converged joint fit (~30 s on 2 cores)
 def test_laplace_start_is_at_the_posteriors_own_scale(folder: Path) -> None:
     """The walkers of a Laplace start spread like the posterior the fit then samples.
 
