@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from granbayes import Experiment
+from granbayes import Experiment, stats
 from granbayes._fitting import FitSettings
 from granbayes._sampler import SamplerSettings
 from granbayes._sbc import run_sbc
@@ -76,25 +76,10 @@ def main(argv: list[str] | None = None) -> int:
             data_source="SYNTHETIC design, benchmarks/sbc_calibration.py",
         )
         summaries[mode] = res.summary
-        for p in res.summary["parameters"]:
-            cov = p["coverage"]
-            rows.append(
-                {
-                    "fit's robot": mode,
-                    "parameter": p["parameter"],
-                    "phi": p["phi"],
-                    "n": p["n_replicates"],
-                    "mean rank": round(p["mean_normalised_rank"], 3),
-                    **{
-                        f"{lv} coverage": f"{c['observed']:.2f} ± {c['se']:.2f}"
-                        for lv, c in cov.items()
-                    },
-                    "chi2 p": p["uniformity"]["p_value"],
-                    "pot_c p": p["uniformity"]["pot_c_p_value"],
-                    "converged": p["fraction_converged"],
-                }
-            )
-    table = pd.DataFrame(rows)
+        part = stats.sbc_table(res.summary["parameters"])
+        part.insert(0, "fit's robot", mode)
+        rows.append(part)
+    table = pd.concat(rows, ignore_index=True)
     (HERE / "results").mkdir(exist_ok=True)
     (HERE / "results" / "sbc_calibration.json").write_text(
         json.dumps(summaries, indent=1, default=str) + "\n"

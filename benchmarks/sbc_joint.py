@@ -32,9 +32,7 @@ import argparse
 import json
 from pathlib import Path
 
-import pandas as pd
-
-from granbayes import Prior, default_priors, load_experiment, load_measurements
+from granbayes import Prior, default_priors, load_experiment, load_measurements, stats
 from granbayes._fitting import FitSettings
 from granbayes._sbc import run_sbc
 from granbayes.campaign import ClusterSettings
@@ -92,24 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         resume=args.resume,
         data_source="SYNTHETIC design, benchmarks/sbc_joint.py",
     )
-    rows = []
-    for p in res.summary["parameters"]:
-        cov = p["coverage"]
-        rows.append(
-            {
-                "parameter": p["parameter"],
-                "n": p["n_replicates"],
-                "mean rank": round(p["mean_normalised_rank"], 3),
-                **{
-                    f"{lv} coverage": f"{c['observed']:.2f} ± {c['se']:.2f}"
-                    for lv, c in cov.items()
-                },
-                "chi2 p": p["uniformity"]["p_value"],
-                "pot_c p": p["uniformity"]["pot_c_p_value"],
-                "converged": p["fraction_converged"],
-            }
-        )
-    table = pd.DataFrame(rows)
+    table = stats.sbc_table(res.summary["parameters"]).drop(columns="phi")
     tasks = res.campaign.tasks
     elapsed = tasks.loc[tasks["status"] == "ok", "elapsed_s"].astype(float)
     counts = {kind: int(t.shape[0]) for kind, t in design.tables.items()}

@@ -480,6 +480,11 @@ def _find_starts_many(
     return out
 
 
+#: ``-log p`` the climb of a Laplace start gives a point outside the support or whose
+#: simulation failed: far above any log-posterior here, and small enough that Powell's
+#: line-search arithmetic cannot overflow (1e300 did, in fits with intrusion tests).
+_INFEASIBLE = 1e10
+
 #: Evaluations per dimension that Powell's polish of a Laplace start may spend.
 _POLISH_EVALS = 400
 
@@ -634,7 +639,7 @@ def _value_and_gradient(model: JumpModel, lo: np.ndarray, hi: np.ndarray):
         pts[2 + 2 * np.arange(d), np.arange(d)] = down
         lp = evaluate_models([model], [pts])[0].log_prob
         if not np.isfinite(lp[0]):
-            return 1e300, np.zeros(d)
+            return _INFEASIBLE, np.zeros(d)
         a, b = lp[1::2], lp[2::2]
         ok = np.isfinite(a) & np.isfinite(b) & (up > down)
         grad = np.where(ok, (a - b) / np.where(ok, up - down, 1.0), 0.0)
@@ -700,7 +705,7 @@ def _laplace_starts(
 
         def objective(u: np.ndarray, i: int = i, lo: np.ndarray = lo, hi: np.ndarray = hi):
             lp = evaluate_models([models[i]], [np.clip(u, lo, hi)[None, :]])[0].log_prob[0]
-            return -lp if np.isfinite(lp) else 1e300
+            return -lp if np.isfinite(lp) else _INFEASIBLE
 
         u, value = points[i, e], objective(points[i, e])
         for method in _POLISH:

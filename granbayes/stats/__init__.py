@@ -23,7 +23,7 @@ from here.
   :func:`identifiability_table`, :func:`posterior_draws`, :func:`posterior_intervals`,
   :func:`p_greater`, :func:`correlation`.
 * Simulation-based calibration: :func:`summarize_ranks`, :func:`normalised_ranks`,
-  :func:`sbc_uniformity`.
+  :func:`sbc_uniformity`, :func:`sbc_table`.
 """
 
 from ._cells import (
@@ -50,7 +50,7 @@ from ._loo import (
     unit_phi_name,
 )
 from ._moment_matching import MomentMatch, moment_match, moment_match_search
-from ._sbc import COVERAGE_LEVELS, normalised_ranks, sbc_uniformity, summarize_ranks
+from ._sbc import COVERAGE_LEVELS, normalised_ranks, sbc_table, sbc_uniformity, summarize_ranks
 from ._summaries import (
     IDENTIFIABILITY_LEVELS,
     by_ensemble,
@@ -102,6 +102,7 @@ __all__ = [
     "residual_table",
     "rmse_mm",
     "run_diagnostics",
+    "sbc_table",
     "sbc_uniformity",
     "spearman_rows",
     "summarize_ranks",

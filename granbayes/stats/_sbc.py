@@ -116,6 +116,40 @@ def summarize_ranks(ranks: pd.DataFrame) -> list[dict[str, Any]]:
     return out
 
 
+def sbc_table(parameters: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
+    """The rows of :func:`summarize_ranks` as a table to print or write.
+
+    Parameters
+    ----------
+    parameters : sequence of mapping
+        :func:`summarize_ranks`'s output (``summary.json``'s ``parameters``).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per parameter and volume fraction: ``parameter``, ``phi``, ``n``,
+        ``mean rank`` (0.5 if calibrated), ``<level> coverage`` as ``"observed ± se"``,
+        ``chi2 p``, ``pot_c p`` and ``converged`` (the fraction of converged fits).
+    """
+    rows = [
+        {
+            "parameter": p["parameter"],
+            "phi": p["phi"],
+            "n": p["n_replicates"],
+            "mean rank": round(p["mean_normalised_rank"], 3),
+            **{
+                f"{level} coverage": f"{c['observed']:.2f} ± {c['se']:.2f}"
+                for level, c in p["coverage"].items()
+            },
+            "chi2 p": p["uniformity"]["p_value"],
+            "pot_c p": p["uniformity"]["pot_c_p_value"],
+            "converged": p["fraction_converged"],
+        }
+        for p in parameters
+    ]
+    return pd.DataFrame(rows)
+
+
 def _sbc_dataset(pit: Mapping[str, np.ndarray], phis: Sequence[float]) -> xr.Dataset:
     n = len(next(iter(pit.values())))
     return xr.Dataset(
