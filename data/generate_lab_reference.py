@@ -147,12 +147,12 @@ def data_sets() -> dict[str, DataSet]:
                 "Small enough to fit in minutes: `granbayes fit "
                 "granbayes/data/reference_tracked --out OUT --terms depth,drag,compaction "
                 "--seed 1` converged (every run; 200-350 steps of 4 ensembles of 32 "
-                "walkers, from the Laplace start of fits with tracked jumps) in 108 s wall "
-                "time on a 2-core machine (2026-11-27; the heights alone, `--data heights`: "
-                "33 s); from the earlier search start it had needed 1700-2500 steps and "
-                "11.1 min. Filming trial 1 of every cell instead (15 jumps, 4365 frames) "
-                "took 30.6 min from that start (2500-2700 steps), so only the single jumps "
-                "are filmed here."
+                "walkers, from the Laplace start of fits with tracked jumps) in 108-116 s "
+                "wall time on a 2-core machine (2026-11-27, two runs; the heights alone, "
+                "`--data heights`: 30-33 s); from the earlier search start it had needed "
+                "1700-2500 steps and 11.1 min. Filming trial 1 of every cell instead "
+                "(15 jumps, 4365 frames) took 30.6 min from that start (2500-2700 steps), "
+                "so only the single jumps are filmed here."
             ),
         ),
         "added_mass": DataSet(
