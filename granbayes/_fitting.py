@@ -80,7 +80,14 @@ from ._likelihood import (
 from ._measurements import Measurements
 from ._priors import Prior, calibration_priors, default_priors
 from ._provenance import environment
-from ._sampler import ProgressInfo, RunSpec, SamplerRun, SamplerSettings, run_side_by_side
+from ._sampler import (
+    START_NOTE,
+    ProgressInfo,
+    RunSpec,
+    SamplerRun,
+    SamplerSettings,
+    run_side_by_side,
+)
 from ._search import drive, nelder_mead
 from ._simulator import SolverSettings
 from .commands import COMMAND_NAMES
@@ -780,7 +787,8 @@ def _laplace_starts(
             source[pair] = best
         if low and notes is not None:
             notes.setdefault(i, []).append(
-                "start: ensemble(s) "
+                START_NOTE
+                + "ensemble(s) "
                 + ", ".join(f"{e} (log-probability {heights[i, e]:.1f})" for _, e in low)
                 + f" polished to points more than {gap:.1f} nats below ensemble {best[1]}'s "
                 f"mode ({heights[best]:.1f}); started from that mode's Laplace approximation"

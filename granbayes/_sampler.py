@@ -139,14 +139,15 @@ class SamplerSettings:
     start : {"auto", "search", "laplace"}
         Where each ensemble's walkers start (:func:`granbayes.fit`): ``search``, a ball
         about the best point of a random local search from the ensemble's best prior
-        draws; ``laplace``, that point polished to the ensemble's posterior mode (Powell)
-        and the walkers drawn from the Laplace approximation there (normal, covariance the
-        inverse of the finite-difference Hessian of the log-posterior), so that they start
+        draws; ``laplace``, that point climbed to the ensemble's posterior mode (batched
+        evolution strategy, Powell, L-BFGS-B; ``granbayes._fitting``) and the walkers
+        drawn from the Laplace approximation there (normal, covariance the inverse of the
+        finite-difference Hessian of the log-posterior), so that they start
         at the posterior's own scale and orientation; ``auto``, ``laplace`` for a fit with
         tracked jumps or intrusion curves (whose posteriors are narrow: from a ball the
-        ensembles spent most of their 1,500-2,550 steps contracting, 4-5x the steps from a
-        Laplace start) and ``search`` for heights alone (the start every study of heights
-        alone was measured with).
+        ensembles spent most of their 1,500-2,550 steps contracting, 6-10x the 250 steps
+        from a Laplace start) and ``search`` for heights alone (the start every study of
+        heights alone was measured with).
     """
 
     n_walkers: int = 8
@@ -678,6 +679,11 @@ def _spawn(seed: int, n: int) -> list[int]:
     return [int(q.generate_state(1)[0]) for q in np.random.SeedSequence(seed).spawn(n)]
 
 
+#: How a note on where the ensembles started begins (:attr:`RunSpec.notes`): such a note
+#: is not a restart, and does not count against ``max_restarts``.
+START_NOTE = "start: "
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One posterior to sample with independent ensembles (a *run*).
@@ -700,8 +706,8 @@ class RunSpec:
     progress : callable, optional
         Called with a :class:`ProgressInfo` after every chunk.
     notes : sequence of str
-        What happened before sampling (e.g. where the ensembles were started), reported
-        first among the run's warnings.
+        What happened before sampling (where the ensembles were started: each begins
+        with :data:`START_NOTE`), reported first among the run's warnings.
     """
 
     initial: Sequence[np.ndarray]
@@ -766,7 +772,14 @@ def _start_run(spec: RunSpec, s: SamplerSettings) -> _Run:
     # the global step: every ensemble's chain ends there (offset + its own length)
     done = max(e.offset + e.iteration for e in ens)
     return _Run(
-        spec, ens, [m for m, _ in pairs], weights / np.sum(weights), path, notes, done, len(notes)
+        spec,
+        ens,
+        [m for m, _ in pairs],
+        weights / np.sum(weights),
+        path,
+        notes,
+        done,
+        sum(not n.startswith(START_NOTE) for n in notes),  # restarts so far
     )
 
 

@@ -113,3 +113,15 @@ def test_laplace_start_is_at_the_posteriors_own_scale(folder: Path) -> None:
     names = model.coordinate_names
     message = {s: dict(zip(names, np.round(r, 2), strict=True)) for s, r in ratios.items()}
     assert np.all((ratios["laplace"] > 1 / 3) & (ratios["laplace"] < 3)), message
+
+
+def test_a_start_note_is_reported_but_is_not_a_restart() -> None:
+    """Notes on where the ensembles started come first among a run's warnings and do not
+    use up ``max_restarts`` (a restart note does)."""
+    from granbayes._sampler import START_NOTE, RunSpec, _start_run
+
+    initial = [np.random.default_rng(i).standard_normal((8, 2)) for i in range(2)]
+    s = SamplerSettings(n_walkers=8, n_ensembles=2)
+    run = _start_run(RunSpec(initial, 0, seed=1, notes=(START_NOTE + "ensemble(s) 1 ...",)), s)
+    assert run.restarts == 0 and run.notes == [START_NOTE + "ensemble(s) 1 ..."]
+    assert _start_run(RunSpec(initial, 0, seed=1, notes=("step 50: restarted",)), s).restarts == 1
