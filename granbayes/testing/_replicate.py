@@ -119,8 +119,9 @@ def replicate_measurements(
         the position columns the frames have) and ``frame_tau_ms`` [ms];
         ``force_sd_N`` [N].
     rng : numpy.random.Generator
-        Source of every draw: height noise, then per tracked jump (in order of first
-        appearance) its clock offset and its noise (foot, then rod), then the force noise.
+        Source of every draw, in this order: the heights' noise, every tracked jump's clock
+        offset (in order of first appearance), every tracked jump's frame noise (foot,
+        then rod), the forces' noise.
     offset_window_s : mapping, optional
         Half-width [s] of the uniform prior of each tracked jump's clock offset, by the
         value of its ``jump`` column (required with trajectories).
