@@ -1134,9 +1134,7 @@ def run_sbc_command(args: argparse.Namespace) -> int:
     if not args.connect_timeout > 0:
         raise UsageError(f"--connect-timeout {args.connect_timeout}: must be > 0")
     experiment = load_experiment(args.data)
-    design = _load_measurements(args, experiment)
-    if design.kinds == ("heights",):
-        design = design.tables["heights"]
+    design = _load_measurements(args, experiment)  # run_sbc takes heights alone as a table
     priors = load_priors(args.priors) if args.priors else None
     log = (lambda _m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     try:

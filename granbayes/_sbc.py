@@ -145,16 +145,7 @@ def draw_replicate(
     drawn = dataclasses.replace(settings, calibration="sample")
     for _, model, rows in part_models(experiment, table, drawn, priors):
         phi = float(model.phis[0])
-        for _ in range(_MAX_PRIOR_TRIES):
-            u = model.sample_prior(rng, 1)
-            sim, ok = model.predict(u)
-            if ok[0] and np.all(np.isfinite(sim)):
-                break
-        else:
-            raise RuntimeError(
-                f"at phi={phi:g} none of {_MAX_PRIOR_TRIES} prior draws gave jumps that all "
-                "finish; narrow the priors"
-            )
+        u, sim = _draw_prior(model, rng)
         values = model.parameter_values(u)
         sigma = float(values["sigma_mm"][0, 0])
         n = len(rows)
@@ -170,13 +161,13 @@ def draw_replicate(
     return table, truths
 
 
-def _draw_prior(model, rng: np.random.Generator) -> np.ndarray:
-    """A prior draw of one run's coordinates whose jumps all finish."""
+def _draw_prior(model, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A prior draw of one run's coordinates whose jumps all finish, and their heights."""
     for _ in range(_MAX_PRIOR_TRIES):
         u = model.sample_prior(rng, 1)
         sim, ok = model.predict(u)
         if ok[0] and np.all(np.isfinite(sim)):
-            return u
+            return u, sim
     raise RuntimeError(
         f"at phi={float(model.phis[0]):g} none of {_MAX_PRIOR_TRIES} prior draws gave jumps "
         "that all finish; narrow the priors"
@@ -240,7 +231,7 @@ def draw_measurements(
     windows: dict[Any, float] = {}
     for _, model, _units in part_models(experiment, design, drawn, priors):
         phi = float(model.phis[0])
-        u = _draw_prior(model, rng)
+        u, _ = _draw_prior(model, rng)
         values = model.parameter_values(u)
         law = model.law_values(u, model.phis)
         names = dict.fromkeys(
