@@ -148,6 +148,11 @@ class SamplerSettings:
         ensembles spent most of their 1,500-2,550 steps contracting, 6-10x the 250 steps
         from a Laplace start) and ``search`` for heights alone (the start every study of
         heights alone was measured with).
+    start_climbs : int
+        Climbs per ensemble of a Laplace start (from its searched point and its next best
+        prior draws; the ensemble starts at the highest mode): a posterior of tracked
+        jumps can have separated modes (strong drag or added mass) that one climb per
+        ensemble misses by luck (``granbayes._fitting._laplace_starts``).
     """
 
     n_walkers: int = 8
@@ -163,11 +168,14 @@ class SamplerSettings:
     n_draws: int = 100
     moves: Literal["de", "stretch"] = "de"
     start: Literal["auto", "search", "laplace"] = "auto"
+    start_climbs: int = 3
 
     def __post_init__(self) -> None:
         """Check the choices."""
         if self.start not in ("auto", "search", "laplace"):
             raise ValueError(f"start must be 'auto', 'search' or 'laplace', got {self.start!r}")
+        if self.start_climbs < 1:
+            raise ValueError(f"start_climbs must be at least 1, got {self.start_climbs}")
 
     def walkers_for(self, ndim: int) -> int:
         """Walkers per ensemble for a problem of dimension ``ndim`` (even, >= 4 ndim).

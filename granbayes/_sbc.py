@@ -303,6 +303,18 @@ def rank_draws(part: FitPart, n_rank_draws: int) -> tuple[np.ndarray, bool]:
     return pool[pick], independent
 
 
+def _log_prob_at(model, truth: Mapping[str, float]) -> float:
+    """The log-posterior of a run's model at true parameter values.
+
+    NaN if it has coordinates that are not parameters (a polynomial's coefficients).
+    """
+    coords = model.coordinates
+    if any(":" in c.name or c.parameter not in truth for c in coords):
+        return math.nan
+    u = np.array([[float(c.prior.to_u(np.asarray(truth[c.parameter]))) for c in coords]])
+    return float(model(u)[0][0])
+
+
 def replicate_ranks(
     experiment: Experiment,
     design: pd.DataFrame | Measurements,
@@ -333,7 +345,10 @@ def replicate_ranks(
         One row per volume fraction and parameter: ``replicate``, ``phi``,
         ``parameter``, ``true_value``, ``rank`` (number of draws below the truth),
         ``n_draws``, ``posterior_median``, and the run's ``converged``, ``tau_max``
-        [steps], ``n_steps``, ``independent_draws``.
+        [steps], ``n_steps``, ``independent_draws``, ``log_prob_truth`` (the
+        log-posterior at the true values) and ``log_prob_max`` (the highest of the kept
+        draws'): a truth far above every draw means the sampler missed its mode, which
+        no convergence check of the run can see.
     """
     truth_seed, fit_seed = spawn_seeds(seed, 2)
     draw = draw_measurements if isinstance(design, Measurements) else draw_replicate
@@ -344,6 +359,8 @@ def replicate_ranks(
         phi = float(part.model.phis[0])
         draws_u, independent = rank_draws(part, n_rank_draws)
         values = part.model.parameter_values(draws_u)
+        lp_truth = _log_prob_at(part.model, truths[phi])
+        lp_max = float(np.max(part.run.log_prob))
         for name in truths[phi]:
             draws = values[name][:, 0]
             true = truths[phi][name]
@@ -360,6 +377,8 @@ def replicate_ranks(
                     "tau_max": float(np.nanmax(part.run.tau)),
                     "n_steps": int(part.run.n_steps),
                     "independent_draws": bool(independent),
+                    "log_prob_truth": lp_truth,
+                    "log_prob_max": lp_max,
                 }
             )
     return rows
@@ -368,6 +387,27 @@ def replicate_ranks(
 # ----------------------------------------------------------------------------------------
 # Summary
 # ----------------------------------------------------------------------------------------
+
+
+def _mode_check(ranks: pd.DataFrame, gap: float) -> dict[str, Any]:
+    """Runs whose truth lies more than ``gap`` nats above every kept draw (missed modes)."""
+    if not len(ranks) or "log_prob_truth" not in ranks:
+        return {"n_runs": 0, "n_missed": 0, "missed": [], "gap_nats": gap}
+    runs = ranks.drop_duplicates(["replicate", "phi"])
+    excess = runs["log_prob_truth"] - runs["log_prob_max"]
+    missed = runs[excess > gap]
+    return {
+        "what": "runs whose truth's log-posterior exceeds every kept draw's by more than "
+        "gap_nats (the sampler's mode_gap): the sampler missed the truth's mode",
+        "gap_nats": float(gap),
+        "n_runs": int(excess.notna().sum()),
+        "n_missed": len(missed),
+        "missed": [
+            {"replicate": int(r.replicate), "phi": float(r.phi), "excess_nats": float(x)}
+            for r, x in zip(missed.itertuples(), excess[excess > gap], strict=True)
+        ],
+        "excess_nats_median": float(excess.median()) if excess.notna().any() else None,
+    }
 
 
 def _summary_markdown(summary: Mapping[str, Any]) -> str:
@@ -397,6 +437,15 @@ def _summary_markdown(summary: Mapping[str, Any]) -> str:
             f"{u['p_value']:.3f} | {p_pot} | {cov[0]} | {cov[1]} |"
         )
     t = summary["timing"]
+    mc = summary.get("mode_check", {})
+    if mc.get("n_runs"):
+        lines += [
+            "",
+            f"Missed modes: in {mc['n_missed']} of {mc['n_runs']} runs the truth's "
+            f"log-posterior exceeds every kept draw's by more than {mc['gap_nats']:g} nats "
+            f"(median excess of the truth over the best draw: {mc['excess_nats_median']:.1f}"
+            " nats; a draw from the posterior lies below its mode by about d/2).",
+        ]
     lines += [
         "",
         f"Compute: {t['task_s_total']:.0f} s of replicate time (median {t['task_s_median']:.1f} "
@@ -613,6 +662,7 @@ def _write_outputs(
         "pot_c: ArviZ's uniformity test (arviz-stats)",
         "coverage": "fraction of replicates whose true value lies in the central "
         "interval of the ranked draws; se = sqrt(c (1 - c) / n)",
+        "mode_check": _mode_check(ranks, settings.sampler.mode_gap),
         "parameters": stats.summarize_ranks(ranks) if len(ranks) else [],
     }
     write_json(work / "summary.json", summary)

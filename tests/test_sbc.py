@@ -535,3 +535,23 @@ def test_sbc_of_a_joint_fit_draws_every_kinds_noise_and_ranks_it(
     )
     first = ranks[ranks["replicate"] == 0].set_index("parameter")["true_value"]
     assert first.to_dict() == pytest.approx(truths[0.612])
+    # the truth's log-posterior is recorded, and every run's truth checked against its draws
+    assert np.isfinite(ranks["log_prob_truth"]).all()
+    assert summary["mode_check"]["n_runs"] == 2
+
+
+def test_mode_check_flags_runs_whose_truth_beats_every_draw_by_more_than_the_gap() -> None:
+    """A run whose truth's log-posterior is above all its draws by more than the gap is a
+    missed mode; one below its best draw (a typical truth) or just above it is not."""
+    from granbayes._sbc import _mode_check
+
+    rows = []
+    for rep, (truth, best) in enumerate([(10.0, 14.0), (20.0, 17.0), (400.0, 220.0)]):
+        for name in ("k", "c_d"):  # one row per parameter; the run's values repeat
+            rows.append(
+                {"replicate": rep, "phi": 0.612, "parameter": name}
+                | {"log_prob_truth": truth, "log_prob_max": best}
+            )
+    check = _mode_check(pd.DataFrame(rows), gap=5.0)
+    assert (check["n_runs"], check["n_missed"]) == (3, 1)
+    assert check["missed"] == [{"replicate": 2, "phi": 0.612, "excess_nats": 180.0}]

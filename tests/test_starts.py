@@ -125,3 +125,63 @@ def test_a_start_note_is_reported_but_is_not_a_restart() -> None:
     run = _start_run(RunSpec(initial, 0, seed=1, notes=(START_NOTE + "ensemble(s) 1 ...",)), s)
     assert run.restarts == 0 and run.notes == [START_NOTE + "ensemble(s) 1 ..."]
     assert _start_run(RunSpec(initial, 0, seed=1, notes=("step 50: restarted",)), s).restarts == 1
+
+
+class _TwoModes:
+    """A stub posterior on [-10, 10]^2: two narrow modes, the better one at (6, 6).
+
+    The better mode is too narrow for the evolution strategy's steps to land in by chance
+    from the other, and off the coordinate lines through the worse one (Powell's first
+    line searches).
+    """
+
+    ndim = 2
+    bounds_u = np.array([[-10.0, 10.0], [-10.0, 10.0]])
+    centres = np.array([[-6.0, -6.0], [6.0, 6.0]])
+    heights = np.array([0.0, 30.0])  # [nats]
+    sds = np.array([0.3, 0.05])
+
+    def log_prob(self, u: np.ndarray) -> np.ndarray:
+        d2 = ((u[:, None, :] - self.centres[None]) ** 2).sum(axis=2)
+        return np.max(self.heights - d2 / (2 * self.sds**2), axis=1)
+
+    def log_prior(self, u: np.ndarray) -> np.ndarray:
+        inside = np.all((u >= -10.0) & (u <= 10.0), axis=1)
+        return np.where(inside, 0.0, -np.inf)
+
+
+def _stub_evaluate(models, points):
+    from types import SimpleNamespace
+
+    return [
+        SimpleNamespace(log_prob=m.log_prob(np.asarray(u)))
+        for m, u in zip(models, points, strict=True)
+    ]
+
+
+@pytest.mark.parametrize("climbs", [1, 3])
+def test_each_ensemble_starts_from_the_best_of_its_climbs(
+    monkeypatch: pytest.MonkeyPatch, climbs: int
+) -> None:
+    """A climb from the worse mode's basin stays there (a local climb cannot cross); with
+    further starting points of its own, one of them in the better basin, the ensemble
+    starts at the better mode, and the run's notes say that the climbs ended in separated
+    modes. (Why several climbs: ``_laplace_starts``' docstring, measured on a SBC
+    replicate of tracked jumps whose climbs found the truth's mode in 5 of 16.)"""
+    import granbayes._fitting as gfit
+
+    monkeypatch.setattr(gfit, "evaluate_models", _stub_evaluate)
+    model = _TwoModes()
+    searched = np.array([[-5.6, -6.2]])  # the one ensemble's searched point: worse basin
+    others = {(0, 0): np.array([[-6.3, -6.4], [5.9, 6.05]])[: climbs - 1]}
+    notes: dict[int, list[str]] = {}
+    drawn = gfit._laplace_starts(
+        [model], [np.random.default_rng(3)], [searched], [64], [0], [None], 5.0, notes, others
+    )
+    centre = drawn[0, 0].mean(axis=0)
+    expected = model.centres[1] if climbs == 3 else model.centres[0]
+    np.testing.assert_allclose(centre, expected, atol=0.15)  # 64 walkers of sd <= 0.3
+    if climbs == 3:
+        assert "2 of 3 climbs ended more than" in notes[0][0]
+    else:
+        assert not notes
