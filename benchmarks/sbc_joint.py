@@ -119,6 +119,23 @@ def main(argv: list[str] | None = None) -> int:
         "A calibrated fit: coverage near nominal (within about 2 SE), mean rank near 0.5, "
         "uniformity p-values that are not small.",
     ]
+    mc = res.summary["mode_check"]
+    lines += [
+        "",
+        f"Missed modes: {mc['n_missed']} of {mc['n_runs']} runs have a truth whose "
+        f"log-posterior exceeds every kept draw's by more than {mc['gap_nats']:g} nats "
+        f"(median excess of the truth over the best draw {mc['excess_nats_median']:.1f} "
+        "nats; a posterior draw lies about d/2 = 4 nats below the mode)"
+        + (
+            ": "
+            + ", ".join(
+                f"replicate {m['replicate']} (+{m['excess_nats']:.0f})" for m in mc["missed"]
+            )
+            if mc["missed"]
+            else ""
+        )
+        + ".",
+    ]
     (HERE / "results" / "sbc_joint.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
