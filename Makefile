@@ -90,5 +90,14 @@ one_force_law: $(BIN)/.installed
 optimal_jumping: $(BIN)/.installed
 	$(RUN_ANALYSIS) --terms $(IMPROVED_LAW)
 
+# The thesis's added-mass question asked again of the SYNTHETIC added-mass set (kappa = 1.5),
+# from its heights alone and with its intrusion curves (which identify kappa).
+.PHONY: added_mass_impulse_on_added_mass added_mass_impulse_identified
+added_mass_impulse_on_added_mass: $(BIN)/.installed
+	$(BIN)/python analyses/added_mass_impulse.py granbayes/data/added_mass --out $(ANALYSES_OUT)/$@
+added_mass_impulse_identified: $(BIN)/.installed
+	$(BIN)/python analyses/added_mass_impulse.py granbayes/data/added_mass \
+		--data heights,intrusions --out $(ANALYSES_OUT)/$@
+
 clean:
 	rm -rf $(VENV) .venv-lock demo-output .pytest_cache

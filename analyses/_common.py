@@ -257,17 +257,20 @@ def sampler_settings(fast: bool) -> SamplerSettings:
 
 def run_fit(
     ctx: Context,
-    table: pd.DataFrame,
+    table: pd.DataFrame | granbayes.Measurements,
     terms: Sequence[str],
     *,
     phi_mode: str = "per_phi",
     seed_offset: int = 0,
 ) -> FitResult:
-    """A granbayes fit of ``terms`` to ``table`` with the analysis's chain settings."""
+    """A granbayes fit of ``terms`` with the analysis's chain settings.
+
+    ``table`` is jumps, or measurements of several kinds.
+    """
     config = FitSettings(terms=tuple(terms), phi_mode=phi_mode, sampler=sampler_settings(ctx.fast))
     result = fit(
         ctx.experiment,
-        table.reset_index(drop=True),
+        table.reset_index(drop=True) if isinstance(table, pd.DataFrame) else table,
         config,
         seed=ctx.seed + seed_offset,
         data_source=str(ctx.data),

@@ -11,6 +11,14 @@ Correlations across cells are given the thesis's way (Pearson r of the cells' me
 propagated (r across cells for every draw index), with Spearman's rank correlation
 alongside. J_total is proportional to kappa by construction, so the kinematic factor
 J_total / kappa is reported too. Intervals are 90% equal-tailed.
+
+``--data KINDS`` (as ``granbayes fit --data``; default ``heights``, the thesis's data)
+adds the folder's other measurements to every command's fit: its own tracked jumps, and
+the volume fraction's intrusion tests, which belong to no command (every command's fit
+uses all of them, so the per-command fits then share that evidence). From heights alone
+kappa is hardly constrained (the thesis's "best kappa" is then mostly the prior); with
+intrusion curves it is identified, and the thesis's question can be asked of a kappa the
+data determine.
 """
 
 from __future__ import annotations
@@ -27,6 +35,8 @@ from granbayes.analysis import cell_experiment
 from granbayes.analysis.mechanics import MAX_STEP_S, integral_check, simulate_impulses
 from granbayes.commands import SETTINGS as SETTING_COLUMNS
 from granbayes.figures import plot_added_mass, plot_vs_kappa
+from granbayes.kinds import KINDS, Measurements, load_measurements
+from granbayes.report import load_truth
 from granbayes.stats import (
     CI_PROB,
     correlation,
@@ -54,6 +64,57 @@ QUANTITIES = {
         r"$J_\mathrm{total}/\kappa$ [mN s]",
     ),
 }
+
+
+#: Noise parameters of the measurement kinds (not force parameters: not simulated).
+NOISE_PARAMETERS = frozenset(
+    {"sigma_mm", "frame_sd_foot_mm", "frame_sd_rod_mm", "frame_tau_ms", "force_sd_N"}
+)
+
+
+def _kinds(ctx: common.Context) -> tuple[str, ...]:
+    """The kinds of measurement each command's fit uses (``--data``)."""
+    kinds = tuple(k.strip() for k in str(getattr(ctx.args, "kinds", "heights")).split(","))
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown or "heights" not in kinds:
+        raise InputError(
+            f"--data: {', '.join(unknown) or 'heights missing'}; choose among "
+            f"{', '.join(KINDS)}, heights among them"
+        )
+    return kinds
+
+
+def _command_data(
+    ctx: common.Context, every: Measurements | None, command: str
+) -> pd.DataFrame | Measurements:
+    """One command's jumps; with more kinds, its tracked jumps and every intrusion test."""
+    if every is None:
+        return ctx.table[ctx.table["command"] == command]
+    tables = {
+        kind: (t[t["command"] == command] if "command" in t.columns else t).reset_index(drop=True)
+        for kind, t in every.tables.items()
+    }
+    return Measurements(tables, every.unit_columns)
+
+
+def _truth_kappa(ctx: common.Context, fits: pd.DataFrame) -> dict | None:
+    """How the fits' kappa intervals compare with the folder's ``truth.toml`` (if any)."""
+    path = ctx.data / "truth.toml"
+    if not path.is_file():
+        return None
+    truth = {round(float(p), 6): v for p, v in load_truth(path).items()}
+    true = np.array([truth.get(round(float(p), 6), {}).get("kappa", np.nan) for p in fits["phi"]])
+    if not np.isfinite(true).any():
+        return None
+    ok = np.isfinite(true)
+    covered = (fits["kappa_lo"].to_numpy() <= true) & (true <= fits["kappa_hi"].to_numpy())
+    return {
+        "values": [float(v) for v in np.unique(true[ok])],
+        "n_fits": int(ok.sum()),
+        "n_covered": int(covered[ok].sum()),
+        "median_min": float(fits["kappa_median"][ok].min()),
+        "median_max": float(fits["kappa_median"][ok].max()),
+    }
 
 
 def _decisive(p: float) -> str:
@@ -107,16 +168,17 @@ def run_cells(
     medians: list[dict[str, float]] = []
     warnings: list[str] = []
     cells = cells_of(ctx.table)
+    kinds = _kinds(ctx)
+    every = None if kinds == ("heights",) else load_measurements(ctx.data, ctx.experiment, kinds)
     for ic, command in enumerate(COMMAND_NAMES):
         mine = cells[cells["command"] == command]
         if mine.empty:
             continue
-        result = common.run_fit(
-            ctx, ctx.table[ctx.table["command"] == command], TERMS, seed_offset=ic
-        )
+        data = _command_data(ctx, every, command)
+        result = common.run_fit(ctx, data, TERMS, seed_offset=ic)
         warnings += [f"{command}: {w}" for w in result.warnings]
         post = result.datatree.posterior.to_dataset()
-        names = [str(v) for v in post.data_vars if v != "sigma_mm"]
+        names = [str(v) for v in post.data_vars if v not in NOISE_PARAMETERS]
         for phi in np.unique(mine["phi"]):
             rng = ctx.rng(1000 + 100 * ic + int(np.searchsorted(ctx.phis, phi)))
             draws = posterior_draws(result.datatree, phi, names, n_draws, rng)
@@ -293,9 +355,17 @@ def write_up(
     def p_largest(c: str, q: str) -> str:
         return _decisive(per_command[c][f"p_largest_{q}"])
 
+    kinds = n["kinds"]
     body = [
         f"{len(table)} cells (command × φ × frequency), {n['n_draws']} joint posterior draws per "
-        f"(command, φ); the law `{' + '.join(TERMS)}` fitted per command and volume fraction.",
+        f"(command, φ); the law `{' + '.join(TERMS)}` fitted per command and volume fraction "
+        + (
+            "to the jump heights."
+            if kinds == ["heights"]
+            else f"to {', '.join(kinds)} (each command's own jumps and tracked jumps; the "
+            "intrusion tests belong to no command, so every command's fit uses all of them "
+            "at its volume fraction)."
+        ),
         "",
         "**Definitions.** The added-mass force is the snowplough momentum flux "
         "F_am = −(dm_a/dt)·v_foot ≥ 0 [N] (upward; physics-model.md §2–3); it acts only "
@@ -312,13 +382,21 @@ def write_up(
         "",
         f"- **Duration vs κ (thesis Fig. 9):** Pearson r = {_fmt_r(rd)}; Spearman {spearman(rd)}.",
         f"- **J_total vs κ (thesis Fig. 10):** Pearson r = {_fmt_r(rj)}; Spearman {spearman(rj)}.",
-        "- J_total is proportional to κ by construction (J = κ ρ φ ∫V'(d) ż² dt), and the "
-        "kinematic factor J_total/κ is much better determined than κ (median relative 90% "
-        f"width {100 * spread_pk:.0f}% against {100 * spread_k:.0f}% for κ), so a positive "
-        "r for J_total is largely built in. Within "
-        "one draw κ varies across cells as widely as the posteriors allow and J_total "
-        "follows it, which is why the propagated r can exceed the r of the medians. "
-        f"J_total/κ against κ: Pearson r = {_fmt_r(rpk)}.",
+        (
+            "- J_total is proportional to κ by construction (J = κ ρ φ ∫V'(d) ż² dt), and the "
+            "kinematic factor J_total/κ is much better determined than κ (median relative 90% "
+            f"width {100 * spread_pk:.0f}% against {100 * spread_k:.0f}% for κ), so a positive "
+            "r for J_total is largely built in. Within "
+            "one draw κ varies across cells as widely as the posteriors allow and J_total "
+            "follows it, which is why the propagated r can exceed the r of the medians. "
+            if n["n_fits_kappa_loose"] > 0
+            else "- J_total is proportional to κ by construction (J = κ ρ φ ∫V'(d) ż² dt), but "
+            f"here κ is identified in every fit (median relative 90% width {100 * spread_k:.0f}%)"
+            ": it varies across cells only within its posteriors, so the correlations "
+            "measure how the cells' kinematics go with the small differences of their κ, not "
+            "a trade-off with the prior. "
+        )
+        + f"J_total/κ against κ: Pearson r = {_fmt_r(rpk)}.",
         f"- **Per command** (the thesis: added mass matters most for the stutter jump): the "
         f"largest mean J_total is the **{largest_j.replace('_', ' ')}** "
         f"({p_largest(largest_j, 'impulse_mN_s')}), the largest "
@@ -331,9 +409,13 @@ def write_up(
         f"- **How well κ is constrained:** in {n['n_fits_kappa_loose']} of {n['n_fits']} fits "
         "(command × φ) "
         f"the 90% interval of κ is wider than half of the prior's 90% range (prior uniform "
-        f"on [0, {KAPPA_PRIOR_WIDTH:g}]); median ratio {float(np.median(width)):.2f}. "
-        "Where κ is that loose, the 'best κ' is mostly the prior and the correlations "
-        "say little about the physics.",
+        f"on [0, {KAPPA_PRIOR_WIDTH:g}]); median ratio {float(np.median(width)):.2f}."
+        + (
+            " Where κ is that loose, the 'best κ' is mostly the prior and the correlations "
+            "say little about the physics."
+            if n["n_fits_kappa_loose"] > 0
+            else ""
+        ),
         f"- **Integral check** ({len(check_table)} trajectories): doubling the largest "
         f"integrator step to {2e3 * MAX_STEP_S:g} ms changes J_total by at most "
         f"{100 * check['max_rel_diff_double_step']:.2g}% (halving it: "
@@ -341,6 +423,16 @@ def write_up(
         f"κρφV'(d)ż² differs from the Stieltjes sum by at most "
         f"{100 * check['max_rel_diff_flux_quadrature']:.2g}%.",
     ]
+    truth = n.get("truth_kappa")
+    if truth:
+        body.append(
+            f"- **Against the data's documented truth** (`truth.toml`: κ = "
+            f"{', '.join(sorted({f'{v:g}' for v in truth['values']}))}): the 90% interval of κ "
+            f"covers it in {truth['n_covered']} of {truth['n_fits']} fits (command × φ); the "
+            f"fits' medians range {truth['median_min']:.3g}-{truth['median_max']:.3g}. The "
+            "per-command fits share the volume fraction's intrusion tests when they use them, "
+            "so their intervals are not independent."
+        )
     if "data/generate_reference.py" in ctx.label:
         body.append(
             "- **These are the SYNTHETIC reference data, whose documented generating law "
@@ -436,6 +528,7 @@ def analyse(ctx: common.Context) -> tuple[str, dict]:
             "best_kappa": "posterior median",
         },
         "n_draws": n_draws,
+        "kinds": list(_kinds(ctx)),
         "r_duration": corr["duration_ms"],
         "r_impulse": corr["impulse_mN_s"],
         "r_impulse_per_kappa": corr[pk],
@@ -444,6 +537,7 @@ def analyse(ctx: common.Context) -> tuple[str, dict]:
         "largest_kappa_command": largest_k,
         "largest_impulse_per_kappa_command": largest_pk,
         "n_fits_kappa_loose": int((fits["kappa_width_over_prior"] > 0.5).sum()),
+        "truth_kappa": _truth_kappa(ctx, fits),
         "n_fits": len(fits),
         "impulse_per_kappa_relative_width": spread_pk,
         "integral_check": check,
@@ -454,8 +548,19 @@ def analyse(ctx: common.Context) -> tuple[str, dict]:
     return "\n".join(body), numbers
 
 
+def _arguments(p) -> None:
+    p.add_argument(
+        "--data",
+        dest="kinds",
+        default="heights",
+        metavar="KINDS",
+        help="kinds of measurement every command's fit uses, comma-separated (heights, "
+        "trajectories, intrusions; default heights)",
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
-    return common.main(NAME, __doc__, analyse, argv)
+    return common.main(NAME, __doc__, analyse, argv, add_arguments=_arguments)
 
 
 if __name__ == "__main__":

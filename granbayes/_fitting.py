@@ -401,6 +401,7 @@ def _find_starts_many(
     mode_gap: float = 5.0,
     notes: dict[int, list[str]] | None = None,
     climbs: int = 1,
+    climb_ends: dict[tuple[int, int], list[float]] | None = None,
 ) -> list[list[np.ndarray]]:
     """:func:`find_starts` for several models at once, their simulations in one batch.
 
@@ -466,7 +467,7 @@ def _find_starts_many(
             scale[i][~better] *= 0.5
     laplace = [i for i in range(k) if _uses_laplace(models[i], start)]
     drawn = _laplace_starts(
-        models, rngs, x, n_walkers, laplace, warms, mode_gap, notes, others=others
+        models, rngs, x, n_walkers, laplace, warms, mode_gap, notes, others, climb_ends
     )
     out = []
     for i, model in enumerate(models):
@@ -675,6 +676,7 @@ def _laplace_starts(
     mode_gap: float = 5.0,
     notes: dict[int, list[str]] | None = None,
     others: Mapping[tuple[int, int], np.ndarray] | None = None,
+    climb_ends: dict[tuple[int, int], list[float]] | None = None,
 ) -> dict[tuple[int, int], np.ndarray]:
     """Walkers from the Laplace approximation at each ensemble's polished point.
 
@@ -718,6 +720,10 @@ def _laplace_starts(
     log-density) starts from that mode's approximation, as the sampler's first check
     would restart it, and ``notes`` says so. An ensemble warm-started from a parent's
     posterior keeps its start.
+
+    ``climb_ends``, if given, receives every climb's final log-posterior, in order, per
+    ``(model index, ensemble)`` (``benchmarks/start_modes.py`` measures with it how often
+    the climbs miss the truth's mode).
 
     Returns
     -------
@@ -770,6 +776,8 @@ def _laplace_starts(
             if res.fun < value:
                 u, value = np.clip(res.x, lo, hi), float(res.fun)
         climbed.setdefault((i, e), []).append((-value, u))
+    if climb_ends is not None:
+        climb_ends.update({pair: [value for value, _ in ends] for pair, ends in climbed.items()})
     modes = {}
     for (i, e), ends in climbed.items():
         top = max(value for value, _ in ends)

@@ -46,7 +46,7 @@ from . import figures, stats
 from ._deprecated import renamed_keyword
 from ._experiment import Experiment
 from ._files import atomic_path, write_json, write_text
-from ._fitting import FitPart, FitSettings, data_hash, fit, part_models
+from ._fitting import FitPart, FitSettings, _find_starts_many, data_hash, fit, part_models
 from ._measurements import Measurements
 from ._priors import Prior, default_priors
 from ._provenance import machine, package_versions
@@ -381,6 +381,69 @@ def replicate_ranks(
                     "log_prob_max": lp_max,
                 }
             )
+    return rows
+
+
+def replicate_start_modes(
+    experiment: Experiment,
+    design: Measurements,
+    settings: FitSettings,
+    priors: Mapping[str, Prior],
+    kinds: tuple[str, ...],
+    climbs: int,
+    replicate: int,
+    *,
+    seed: int,
+) -> list[dict[str, Any]]:
+    """Do the Laplace start's climbs reach the truth's mode? (a campaign task).
+
+    The replicate of :func:`replicate_ranks` for the same seed (the same truth and data,
+    drawn from the whole design), restricted to ``kinds``; the start of a fit
+    (``start="laplace"``) with ``climbs`` climbs per ensemble, every climb's final
+    log-posterior recorded. No sampling: what the ensembles would start from.
+
+    Returns
+    -------
+    list of dict
+        One row per volume fraction: ``replicate``, ``phi``, ``kinds``,
+        ``log_prob_truth``, ``climb_ends`` (``;``-separated, ensemble-major, ``climbs`` per
+        ensemble) and
+        ``n_ensembles``.
+    """
+    truth_seed, fit_seed = spawn_seeds(seed, 2)
+    data, truths = draw_measurements(
+        experiment, design, settings, priors, np.random.default_rng(truth_seed)
+    )
+    data = Measurements({k: data.tables[k] for k in kinds}, data.unit_columns)
+    rows = []
+    for _, model, _units in part_models(experiment, data, settings, priors):
+        phi = float(model.phis[0])
+        ends: dict[tuple[int, int], list[float]] = {}
+        s = settings.sampler
+        _find_starts_many(
+            [model],
+            [np.random.default_rng(fit_seed)],
+            s.n_ensembles,
+            [s.walkers_for(model.ndim)],
+            [None],
+            "laplace",
+            s.mode_gap,
+            None,
+            climbs,
+            ends,
+        )
+        rows.append(
+            {
+                "replicate": int(replicate),
+                "phi": phi,
+                "kinds": ",".join(kinds),
+                "log_prob_truth": _log_prob_at(model, truths[phi]),
+                "climb_ends": ";".join(
+                    f"{v:.3f}" for e in range(s.n_ensembles) for v in ends[0, e]
+                ),
+                "n_ensembles": int(s.n_ensembles),
+            }
+        )
     return rows
 
 

@@ -555,3 +555,24 @@ def test_mode_check_flags_runs_whose_truth_beats_every_draw_by_more_than_the_gap
     check = _mode_check(pd.DataFrame(rows), gap=5.0)
     assert (check["n_runs"], check["n_missed"]) == (3, 1)
     assert check["missed"] == [{"replicate": 2, "phi": 0.612, "excess_nats": 180.0}]
+
+
+def test_start_modes_of_a_replicate_record_every_climb(joint_design: Path) -> None:
+    """``replicate_start_modes`` (``benchmarks/start_modes.py``'s task): the replicate of
+    the SBC's seed, restricted to the kinds asked for, started with ``climbs`` climbs per
+    ensemble; every climb's end is recorded, none above the best reachable, and the best
+    climbs reach the truth's neighbourhood on this easy one-phi design."""
+    from granbayes._sbc import replicate_start_modes
+
+    experiment = load_experiment(joint_design)
+    design = load_measurements(joint_design, experiment)
+    kinds = ("heights", "intrusions")
+    rows = replicate_start_modes(
+        experiment, design, FAST_CONFIG, default_priors(), kinds, 2, 7, seed=11
+    )
+    assert [(r["replicate"], r["phi"], r["kinds"]) for r in rows] == [
+        (7, 0.612, "heights,intrusions")
+    ]
+    ends = np.array([float(v) for v in rows[0]["climb_ends"].split(";")])
+    assert ends.size == 2 * FAST_CONFIG.sampler.n_ensembles and np.isfinite(ends).all()
+    assert ends.max() > rows[0]["log_prob_truth"] - 5.0  # d = 5: the mode is ~2.5 above
