@@ -406,9 +406,8 @@ def replicate_start_modes(
     -------
     list of dict
         One row per volume fraction: ``replicate``, ``phi``, ``kinds``,
-        ``log_prob_truth``, ``climb_ends`` (``;``-separated, ensemble-major, ``climbs`` per
-        ensemble) and
-        ``n_ensembles``.
+        ``log_prob_truth``, ``climb_ends`` (``;``-separated, ensemble-major, ``climbs``
+        per ensemble) and ``n_ensembles``.
     """
     truth_seed, fit_seed = spawn_seeds(seed, 2)
     data, truths = draw_measurements(

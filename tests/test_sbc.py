@@ -568,11 +568,11 @@ def test_start_modes_of_a_replicate_record_every_climb(joint_design: Path) -> No
     design = load_measurements(joint_design, experiment)
     kinds = ("heights", "intrusions")
     rows = replicate_start_modes(
-        experiment, design, FAST_CONFIG, default_priors(), kinds, 2, 7, seed=11
+        experiment, design, FAST_CONFIG, default_priors(), kinds, 1, 7, seed=11
     )
     assert [(r["replicate"], r["phi"], r["kinds"]) for r in rows] == [
         (7, 0.612, "heights,intrusions")
     ]
     ends = np.array([float(v) for v in rows[0]["climb_ends"].split(";")])
-    assert ends.size == 2 * FAST_CONFIG.sampler.n_ensembles and np.isfinite(ends).all()
+    assert ends.size == FAST_CONFIG.sampler.n_ensembles and np.isfinite(ends).all()
     assert ends.max() > rows[0]["log_prob_truth"] - 5.0  # d = 5: the mode is ~2.5 above
