@@ -23,6 +23,7 @@ Usage: ``python benchmarks/start_modes.py [--replicates 50] [--workers 2] [--out
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -81,6 +82,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("start-modes"))
     parser.add_argument("--resume", action="store_true")
+    parser.add_argument(
+        "--finished-only",
+        action="store_true",
+        help="tabulate the tasks finished so far in OUT.partial/tasks without running any "
+        "(a stopped study; the table says how many ran)",
+    )
     args = parser.parse_args(argv)
     folder = sbc_joint.design_folder(args.out.with_name(args.out.name + "-design"))
     experiment = load_experiment(folder)
@@ -98,31 +105,47 @@ def main(argv: list[str] | None = None) -> int:
         for kinds in KINDS.values()
         for r in range(args.replicates)
     ]
-    res = run_campaign(
-        tasks,
-        args.out,
-        description={"study": "start modes", "seed": sbc_joint.SEED, "climbs": CLIMBS},
-        cluster=ClusterSettings(n_workers=args.workers, numba_threads=1),
-        resume=args.resume,
-        log=lambda m: print(m, file=sys.stderr),
-    )
-    results = res.results.sort_values(["kinds", "replicate"])
+    note = ""
+    if args.finished_only:
+        partial = Path(f"{args.out}.partial")  # a study under way or stopped
+        folder = partial if partial.exists() else args.out
+        done = [json.loads(f.read_text()) for f in sorted(folder.glob("tasks/*.json"))]
+        ok = [d for d in done if d["status"] == "ok"]
+        results = pd.DataFrame([r for d in ok for r in d["rows"]])
+        elapsed = pd.Series([float(d["elapsed_s"]) for d in ok])
+        n_failed = len(done) - len(ok)
+        note = (
+            f" A STOPPED study: {len(ok)} of {len(tasks)} tasks finished; the others were "
+            "not run and are not counted."
+        )
+    else:
+        res = run_campaign(
+            tasks,
+            args.out,
+            description={"study": "start modes", "seed": sbc_joint.SEED, "climbs": CLIMBS},
+            cluster=ClusterSettings(n_workers=args.workers, numba_threads=1),
+            resume=args.resume,
+            log=lambda m: print(m, file=sys.stderr),
+        )
+        results = res.results
+        elapsed = res.tasks.loc[res.tasks["status"] == "ok", "elapsed_s"].astype(float)
+        n_failed = res.n_failed
+    results = results.sort_values(["kinds", "replicate"])
     (HERE / "results").mkdir(exist_ok=True)
     results.to_csv(HERE / "results" / "start_modes.csv", index=False)
     table = miss_table(results)
-    elapsed = res.tasks.loc[res.tasks["status"] == "ok", "elapsed_s"].astype(float)
     lines = [
         "# Does the Laplace start find the truth's mode? (SYNTHETIC)",
         "",
-        f"{args.replicates} replicates of the joint-fit SBC (`benchmarks/sbc_joint.py`, seed "
+        f"Replicates 0-{args.replicates - 1} of the joint-fit SBC (`benchmarks/sbc_joint.py`, seed "
         f"{sbc_joint.SEED}: the same truths and oracle data), law "
         f"{' + '.join(sbc_joint.TERMS)}, fitted to heights + tracked jumps and to every kind; "
         f"{CLIMBS} climbs per ensemble, 4 ensembles, every climb's end recorded "
         "(`benchmarks/start_modes.py`). A start finds the truth's mode if its best climb "
         f"ends at most {GAP_NATS:g} nats below the log-posterior at the truth; with c climbs "
         "per ensemble, the first c of each. Failed tasks: "
-        f"{res.n_failed}. Task time: median {elapsed.median():.0f} s (one numba thread, "
-        f"{args.workers} workers).",
+        f"{n_failed}. Task time: median {elapsed.median():.0f} s (one numba thread, "
+        f"{args.workers} workers).{note}",
         "",
         markdown_table(table, ".3g"),
         "",
