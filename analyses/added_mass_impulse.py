@@ -30,12 +30,12 @@ import pandas as pd
 
 import _common as common
 import granbayes
-from granbayes import COMMAND_NAMES, InputError, default_priors
+from granbayes import COMMAND_NAMES, InputError, Measurements, default_priors
 from granbayes.analysis import cell_experiment
 from granbayes.analysis.mechanics import MAX_STEP_S, integral_check, simulate_impulses
 from granbayes.commands import SETTINGS as SETTING_COLUMNS
 from granbayes.figures import plot_added_mass, plot_vs_kappa
-from granbayes.kinds import KINDS, Measurements, load_measurements
+from granbayes.kinds import KINDS, load_measurements
 from granbayes.report import load_truth
 from granbayes.stats import (
     CI_PROB,
