@@ -10,11 +10,15 @@ evaluates them all in one call, and hands the values back.
 :func:`nelder_mead` is ``scipy.optimize.minimize(method="Nelder-Mead")`` (its initial
 simplex, coefficients, ``adaptive`` variant, ``xatol``/``fatol`` test and ``maxfev``
 budget) transcribed as such a generator, so that many of them share calls; it visits the
-same points as SciPy's (``tests/test_search.py``).
+same points as SciPy's (``tests/test_search.py``). :func:`in_thread` makes any blocking
+optimisation (SciPy's Powell or L-BFGS-B, say) such a search: it runs in its own thread,
+which waits at each request until :func:`drive` has evaluated the round.
 """
 
 from __future__ import annotations
 
+import queue
+import threading
 from collections.abc import Callable, Generator, Sequence
 
 import numpy as np
@@ -45,22 +49,92 @@ def drive(
     """
     results: list[object] = [None] * len(searches)
     pending: dict[int, np.ndarray] = {}
-    for i, s in enumerate(searches):
-        try:
-            pending[i] = next(s)
-        except StopIteration as stop:
-            results[i] = stop.value
-    while pending:
-        order = sorted(pending)
-        values = evaluate([pending[i] for i in order], order)
-        nxt = {}
-        for i, v in zip(order, values, strict=True):
+    try:
+        for i, s in enumerate(searches):
             try:
-                nxt[i] = searches[i].send(v)
+                pending[i] = next(s)
             except StopIteration as stop:
                 results[i] = stop.value
-        pending = nxt
+        while pending:
+            order = sorted(pending)
+            values = evaluate([pending[i] for i in order], order)
+            nxt = {}
+            for i, v in zip(order, values, strict=True):
+                try:
+                    nxt[i] = searches[i].send(v)
+                except StopIteration as stop:
+                    results[i] = stop.value
+            pending = nxt
+    except BaseException:
+        for s in searches:  # every search stops (a threaded one ends its thread)
+            s.close()
+        raise
     return results
+
+
+def in_thread(climb: Callable[[Callable[[object], object]], object]) -> Search:
+    """A blocking optimisation as a search: ``climb(ask)`` runs in a thread of its own.
+
+    Each ``ask(request)`` of the climb is yielded to :func:`drive` and returns the value
+    the round gives it; the climb's return value is the search's. The thread only does the
+    optimiser's bookkeeping between requests (the evaluation is :func:`drive`'s, on the
+    calling thread), so a round holds one request of every climb, and each climb visits
+    the points it visits alone, in the same order, on every run. An exception in the climb
+    is raised from the search; a search closed early (another one failed) stops its thread.
+
+    Parameters
+    ----------
+    climb : callable
+        ``climb(ask) -> result``.
+
+    Returns
+    -------
+    generator
+        The search.
+    """
+    requests: queue.Queue = queue.Queue(maxsize=1)
+    answers: queue.Queue = queue.Queue(maxsize=1)
+
+    def ask(request: object) -> object:
+        requests.put(("ask", request))
+        kind, value = answers.get()
+        if kind == "stop":
+            raise _Stopped
+        return value
+
+    def run() -> None:
+        try:
+            requests.put(("done", climb(ask)))
+        except _Stopped:
+            requests.put(("stopped", None))
+        except BaseException as exc:
+            requests.put(("error", exc))
+
+    def search() -> Search:
+        thread = threading.Thread(target=run, daemon=True)
+        thread.start()
+        answered = True
+        try:
+            while True:
+                kind, payload = requests.get()
+                if kind == "error":
+                    raise payload
+                if kind != "ask":
+                    return payload
+                answered = False
+                value = yield payload
+                answered = True
+                answers.put(("value", value))
+        finally:
+            if not answered:  # closed at a request: the thread waits for its answer
+                answers.put(("stop", None))
+            thread.join()
+
+    return search()
+
+
+class _Stopped(Exception):
+    """Raised in a climb's thread when its search is closed before the climb ended."""
 
 
 def nelder_mead(
