@@ -10,6 +10,8 @@ log-posterior is recorded (``granbayes._sbc.replicate_start_modes``; no sampling
 about d/2 nats, so a climb that stops in another mode falls far below). From the same
 climbs, the miss rate of a start with ``c`` climbs per ensemble is read off the first
 ``c`` climbs of each ensemble (c = 1: the start before 2026-11-27; c = 3: the default).
+With intrusion curves, the fit's global phase adds one climb per ensemble from the curves'
+own mode; its ends are recorded apart (``anchor_ends``) and tabulated with each ``c``.
 A Dask campaign (resumable).
 
 Writes ``benchmarks/results/start_modes.csv`` and ``.md``: per kinds and ``c``, the
@@ -47,31 +49,50 @@ KINDS = {
 }
 
 
+def _ends(texts: pd.Series, per_ensemble: int) -> np.ndarray:
+    """``;``-separated climb ends -> (replicate, ensemble, climb)."""
+    values = [[float(v) for v in str(t).split(";") if v != ""] for t in texts.fillna("")]
+    return np.array(values).reshape(len(values), -1, per_ensemble)
+
+
 def miss_table(results: pd.DataFrame) -> pd.DataFrame:
-    """Per kinds and climbs per ensemble: starts that missed the truth's mode."""
+    """Per kinds and climbs per ensemble: starts that missed the truth's mode.
+
+    With intrusion curves, also each ``c`` plus the global phase's climb (from the
+    curves' own mode, one per ensemble): the start a fit makes with ``c`` climbs.
+    """
     rows = []
     for label, kinds in KINDS.items():
         part = results[results["kinds"] == ",".join(kinds)]
-        ends = np.array(
-            [[float(v) for v in text.split(";")] for text in part["climb_ends"]]
-        ).reshape(len(part), -1, CLIMBS)  # replicate, ensemble, climb
-        reached = ends >= part["log_prob_truth"].to_numpy()[:, None, None] - GAP_NATS
-        for c in range(1, CLIMBS + 1):
-            found = reached[:, :, :c].any(axis=(1, 2))
-            k = int((~found).sum())
-            lo, hi = clopper_pearson(k, len(found))
-            rows.append(
-                {
-                    "data": label,
-                    "climbs per ensemble": c,
-                    "replicates": len(found),
-                    "start missed the truth's mode": k,
-                    "rate": k / max(len(found), 1),
-                    "95% interval": f"[{lo:.3f}, {hi:.3f}]",
-                    "single climbs reaching it": float(reached.mean()),
-                    "missed": " ".join(str(r) for r in part["replicate"][~found]),
-                }
-            )
+        truth = part["log_prob_truth"].to_numpy()[:, None, None] - GAP_NATS
+        reached = _ends(part["climb_ends"], CLIMBS) >= truth  # replicate, ensemble, climb
+        anchored = (
+            _ends(part["anchor_ends"], 1) >= truth
+            if "intrusions" in kinds and "anchor_ends" in part
+            else None
+        )
+        for with_anchor in (False, True) if anchored is not None else (False,):
+            for c in range(1, CLIMBS + 1):
+                hit = reached[:, :, :c]
+                if with_anchor:
+                    hit = np.concatenate([hit, anchored], axis=2)
+                found = hit.any(axis=(1, 2))
+                k = int((~found).sum())
+                lo, hi = clopper_pearson(k, len(found))
+                rows.append(
+                    {
+                        "data": label,
+                        "climbs per ensemble": f"{c} + intrusion start" if with_anchor else c,
+                        "replicates": len(found),
+                        "start missed the truth's mode": k,
+                        "rate": k / max(len(found), 1),
+                        "95% interval": f"[{lo:.3f}, {hi:.3f}]",
+                        "single climbs reaching it": float(
+                            (anchored if with_anchor else reached).mean()
+                        ),
+                        "missed": " ".join(str(r) for r in part["replicate"][~found]),
+                    }
+                )
     return pd.DataFrame(rows)
 
 
@@ -143,7 +164,11 @@ def main(argv: list[str] | None = None) -> int:
         f"{CLIMBS} climbs per ensemble, 4 ensembles, every climb's end recorded "
         "(`benchmarks/start_modes.py`). A start finds the truth's mode if its best climb "
         f"ends at most {GAP_NATS:g} nats below the log-posterior at the truth; with c climbs "
-        "per ensemble, the first c of each. Failed tasks: "
+        "per ensemble, the first c of each. With intrusion curves a fit adds one climb per "
+        "ensemble from the curves' own mode (the global phase, "
+        "`granbayes._fitting._closed_form_anchors`): the rows 'c + intrusion start' (its "
+        "'single climbs' column: the fraction of those climbs that reach the truth's mode). "
+        "Failed tasks: "
         f"{n_failed}. Task time: median {elapsed.median():.0f} s (one numba thread, "
         f"{args.workers} workers).{note}",
         "",

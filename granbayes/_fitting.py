@@ -615,10 +615,12 @@ def _evolve(
     rngs: Sequence[np.random.Generator],
     bounds: Mapping[int, np.ndarray],
     points: dict[tuple[int, ...], np.ndarray],
+    point_rngs: Mapping[tuple[int, ...], np.random.Generator] | None = None,
 ) -> None:
     """Move every ``points[(i, ...)]`` uphill by a (1+24) evolution strategy, in place.
 
-    ``i`` is the model's index. All points' proposals are one simulator call per round.
+    ``i`` is the model's index; a point's steps are drawn from ``point_rngs[key]`` if
+    given, else from ``rngs[i]``. All points' proposals are one simulator call per round.
     The step grows by 1.5 after a success (to at most a quarter of the prior's width) and
     shrinks by 0.6 after a failure (the search of :func:`find_starts` only shrinks, and
     stalls where a narrow posterior needs long moves along a ridge: 68-530 nats below the
@@ -642,7 +644,8 @@ def _evolve(
         props = {}
         for p in pairs:
             lo, hi = bounds[p[0]]
-            step = rngs[p[0]].standard_normal((n_prop, len(lo)))
+            rng = point_rngs[p] if point_rngs and p in point_rngs else rngs[p[0]]
+            step = rng.standard_normal((n_prop, len(lo)))
             props[p] = np.clip(points[p] + scale[p] * step, lo, hi)
             groups.setdefault(p[0], []).extend(props[p])
         lps = _log_probs(models, groups)
@@ -727,6 +730,63 @@ def _polish(ask, u: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, 
     return -value, u
 
 
+def _closed_form_anchors(
+    models: Sequence[JumpModel],
+    bounds: Mapping[int, np.ndarray],
+    points: Mapping[tuple[int, int, int], np.ndarray],
+) -> dict[tuple[int, int, int], np.ndarray]:
+    """One more start per ensemble of a model with intrusion curves: a global phase.
+
+    The intrusion curves' posterior (:meth:`JumpModel.closed_form_log_prob`: the law,
+    the calibrated robot and the force noise; no simulation) is climbed (``_POLISH``)
+    from the coordinates it depends on of every climb's start, side by side; the best
+    end replaces those coordinates of each ensemble's searched point
+    (``points[i, e, 0]``). A constant-speed intrusion pins the law's coefficients (the
+    force is linear in them for depth, drag and added mass), so this start lies in the
+    basin the curves select, where the jump-by-jump climbs can all end in a mode that
+    fits the tracked jumps' noise instead (``benchmarks/start_modes.py``).
+
+    Returns
+    -------
+    dict
+        ``(model index, ensemble, climb) -> start``, ``climb`` one past the ensemble's
+        last; empty for models without intrusion curves.
+    """
+    jobs = [(i, u) for (i, _, _), u in points.items() if models[i].closed_form_columns.any()]
+    if not jobs:
+        return {}
+
+    def climb(ask, i: int, u: np.ndarray):
+        mask = models[i].closed_form_columns
+        lo, hi = bounds[i]
+
+        def expand(v: np.ndarray) -> np.ndarray:
+            full = np.repeat(u[None, :], len(v), axis=0)
+            full[:, mask] = v
+            return full
+
+        return _polish(lambda v: ask(expand(v)), u[mask], lo[mask], hi[mask])
+
+    ends = drive(
+        [in_thread(partial(climb, i=i, u=u)) for i, u in jobs],
+        lambda requests, which: [
+            models[jobs[w][0]].closed_form_log_prob(full)
+            for w, full in zip(which, requests, strict=True)
+        ],
+    )
+    best: dict[int, tuple[float, np.ndarray]] = {}
+    for (i, _), (value, v) in zip(jobs, ends, strict=True):
+        if i not in best or value > best[i][0]:
+            best[i] = (value, v)
+    out = {}
+    for (i, e, c), u in points.items():
+        if c == 0 and i in best:
+            anchor = u.copy()
+            anchor[models[i].closed_form_columns] = best[i][1]
+            out[i, e, sum(1 for key in points if key[:2] == (i, e))] = anchor
+    return out
+
+
 def _laplace_starts(
     models: Sequence[JumpModel],
     rngs: Sequence[np.random.Generator],
@@ -806,7 +866,12 @@ def _laplace_starts(
         starts = [x[i][e], *(others.get((i, e), ()) if others is not None else ())]
         for c, point in enumerate(starts):
             points[i, e, c] = np.clip(point, *bounds[i])
-    _evolve(models, rngs, bounds, points)
+    # the global phase of models with intrusion curves: one more climb per ensemble, its
+    # evolution steps from a generator of its own (the other climbs' draws are unchanged)
+    anchors = _closed_form_anchors(models, bounds, points)
+    own = {i: rngs[i].spawn(1)[0] for i in sorted({key[0] for key in anchors})}
+    points.update(anchors)
+    _evolve(models, rngs, bounds, points, {key: own[key[0]] for key in anchors})
     keys = list(points)
     ends = drive(
         [

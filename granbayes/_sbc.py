@@ -407,7 +407,8 @@ def replicate_start_modes(
     list of dict
         One row per volume fraction: ``replicate``, ``phi``, ``kinds``,
         ``log_prob_truth``, ``climb_ends`` (``;``-separated, ensemble-major, ``climbs``
-        per ensemble) and ``n_ensembles``.
+        per ensemble), ``anchor_ends`` (the climb from the intrusion curves' own mode, one
+        per ensemble; empty without intrusion curves) and ``n_ensembles``.
     """
     truth_seed, fit_seed = spawn_seeds(seed, 2)
     data, truths = draw_measurements(
@@ -438,7 +439,11 @@ def replicate_start_modes(
                 "kinds": ",".join(kinds),
                 "log_prob_truth": _log_prob_at(model, truths[phi]),
                 "climb_ends": ";".join(
-                    f"{v:.3f}" for e in range(s.n_ensembles) for v in ends[0, e]
+                    f"{v:.3f}" for e in range(s.n_ensembles) for v in ends[0, e][:climbs]
+                ),
+                # the global phase's climb (models with intrusion curves), one per ensemble
+                "anchor_ends": ";".join(
+                    f"{v:.3f}" for e in range(s.n_ensembles) for v in ends[0, e][climbs:]
                 ),
                 "n_ensembles": int(s.n_ensembles),
             }

@@ -137,6 +137,7 @@ class _TwoModes:
 
     ndim = 2
     bounds_u = np.array([[-10.0, 10.0], [-10.0, 10.0]])
+    closed_form_columns = np.zeros(2, dtype=bool)  # no intrusion curves
     centres = np.array([[-6.0, -6.0], [6.0, 6.0]])
     heights = np.array([0.0, 30.0])  # [nats]
     sds = np.array([0.3, 0.05])
@@ -185,3 +186,50 @@ def test_each_ensemble_starts_from_the_best_of_its_climbs(
         assert "2 of 3 climbs ended more than" in notes[0][0]
     else:
         assert not notes
+
+
+class _TwoModesWithCurves(_TwoModes):
+    """The stub with intrusion curves: their own posterior, broad, peaks at the better mode."""
+
+    closed_form_columns = np.ones(2, dtype=bool)
+
+    def closed_form_log_prob(self, u: np.ndarray) -> np.ndarray:
+        d2 = ((np.atleast_2d(u) - self.centres[1]) ** 2).sum(axis=1)
+        return self.log_prior(np.atleast_2d(u)) - d2 / (2 * 2.0**2)
+
+
+def test_intrusion_curves_add_a_climb_from_their_own_mode(monkeypatch: pytest.MonkeyPatch):
+    """The global phase: with intrusion curves, each ensemble gets one more climb, from
+    its searched point with the curves' coordinates at the curves' own mode. From a
+    searched point in the worse basin and no other start, that climb reaches the better
+    mode, and the ensemble starts there; the climb from the searched point ends where it
+    ends without curves, bit for bit (the new climb's steps have a generator of their
+    own)."""
+    import granbayes._fitting as gfit
+
+    monkeypatch.setattr(gfit, "evaluate_models", _stub_evaluate)
+    searched = np.array([[-5.6, -6.2]])
+    runs = {}
+    for label, model in (("plain", _TwoModes()), ("curves", _TwoModesWithCurves())):
+        notes: dict[int, list[str]] = {}
+        ends: dict = {}
+        drawn = gfit._laplace_starts(
+            [model],
+            [np.random.default_rng(3)],
+            [searched],
+            [64],
+            [0],
+            [None],
+            5.0,
+            notes,
+            {},
+            ends,
+        )
+        runs[label] = (drawn[0, 0].mean(axis=0), ends[0, 0], notes)
+    centre, ends, notes = runs["curves"]
+    np.testing.assert_allclose(centre, _TwoModes.centres[1], atol=0.15)
+    assert len(ends) == 2 and ends[1] > ends[0] + 25.0
+    assert "1 of 2 climbs ended more than" in notes[0][0]
+    plain_centre, plain_ends, _ = runs["plain"]
+    np.testing.assert_allclose(plain_centre, _TwoModes.centres[0], atol=0.15)
+    assert plain_ends == [ends[0]]

@@ -285,6 +285,57 @@ class JumpModel:
                 lp[np.any((v < lo) | (v > hi), axis=1)] = -np.inf
         return lp
 
+    @property
+    def closed_form_blocks(self) -> list[int]:
+        """Indices of the blocks whose likelihood needs no simulation (intrusion curves)."""
+        return [i for i, request in enumerate(self._requests) if request is None]
+
+    @property
+    def closed_form_columns(self) -> np.ndarray:
+        """Which coordinates the closed-form blocks' likelihood depends on, shape (ndim,).
+
+        The law's, the calibrated robot's and those blocks' own; all ``False`` when the
+        model has no such block.
+        """
+        mask = np.zeros(self.ndim, dtype=bool)
+        blocks = self.closed_form_blocks
+        if blocks:
+            mask[: len(self._law) + len(self._calibration)] = True
+            for i in blocks:
+                mask[self._slices[i]] = True
+        return mask
+
+    def closed_form_log_prob(self, u: np.ndarray) -> np.ndarray:
+        """Log prior + the closed-form blocks' log-likelihood [nats], no simulation.
+
+        The posterior given only the measurements whose model force is closed-form
+        (intrusion curves; physics-model.md section 5b), up to a constant.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n, ndim)
+            Positions in sampling coordinates.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            ``-inf`` outside the prior's support or where a force could not be computed.
+        """
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        lp = self.log_prior(u)
+        good = np.isfinite(lp)
+        if np.any(good):
+            ug = u[good]
+            law = _law_of(self, ug)
+            total = np.zeros(len(ug))
+            for i in self.closed_form_blocks:
+                ll = self.blocks[i].log_lik(self.block_coordinates(ug, i), law, None)
+                total += ll.sum(axis=1)
+            total[~np.isfinite(total)] = -np.inf
+            lp = lp.copy()
+            lp[good] += total
+        return lp
+
     def log_prior_density(self, u: np.ndarray) -> np.ndarray:
         """Log prior density [nats] of walker positions in the parameters' own units.
 
