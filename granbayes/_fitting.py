@@ -545,9 +545,26 @@ def _batched_log_probs(
     for i, points in requests:
         groups.setdefault(i, []).extend(points)
     lps = _log_probs(models, groups)
-    out, seen = [], dict.fromkeys(groups, 0)
+    return _split(lps, requests)
+
+
+def _batched(
+    value: Callable[[int, np.ndarray], np.ndarray], requests: Sequence[tuple[int, np.ndarray]]
+) -> list[np.ndarray]:
+    """``value(i, points)`` of ``[(model index, points (n, d))]``, one call per model."""
+    groups: dict[int, list[np.ndarray]] = {}
     for i, points in requests:
-        out.append(lps[i][seen[i] : seen[i] + len(points)])
+        groups.setdefault(i, []).extend(points)
+    return _split({i: value(i, np.array(pts)) for i, pts in groups.items()}, requests)
+
+
+def _split(
+    values: Mapping[int, np.ndarray], requests: Sequence[tuple[int, np.ndarray]]
+) -> list[np.ndarray]:
+    """Each request's slice of its model's values (requests concatenated in order)."""
+    out, seen = [], dict.fromkeys(values, 0)
+    for i, points in requests:
+        out.append(values[i][seen[i] : seen[i] + len(points)])
         seen[i] += len(points)
     return out
 
@@ -769,10 +786,10 @@ def _closed_form_anchors(
 
     ends = drive(
         [in_thread(partial(climb, i=i, u=u)) for i, u in jobs],
-        lambda requests, which: [
-            models[jobs[w][0]].closed_form_log_prob(full)
-            for w, full in zip(which, requests, strict=True)
-        ],
+        lambda requests, which: _batched(
+            lambda i, u: models[i].closed_form_log_prob(u),
+            [(jobs[w][0], full) for w, full in zip(which, requests, strict=True)],
+        ),
     )
     best: dict[int, tuple[float, np.ndarray]] = {}
     for (i, _), (value, v) in zip(jobs, ends, strict=True):
@@ -825,6 +842,12 @@ def _laplace_starts(
        of :func:`_laplace_cov`).
     3. **Walkers** are drawn from the normal with the inverse as covariance
        (:func:`_laplace_cov`), kept inside the prior.
+
+    With intrusion curves, each ensemble climbs once more, from its searched point with the
+    coordinates the curves inform at the curves' own posterior mode
+    (:func:`_closed_form_anchors`: a global phase, cheap as the curves need no
+    simulation), where the climbs from searched points and prior draws can all end in one
+    mode of the tracked jumps' (``benchmarks/start_modes.py``).
 
     The ensemble starts from the highest of its climbs' modes. Several climbs because a
     posterior of tracked jumps can have separated modes whose basins the climb reaches

@@ -152,7 +152,8 @@ class SamplerSettings:
         Climbs per ensemble of a Laplace start (from its searched point and its next best
         prior draws; the ensemble starts at the highest mode): a posterior of tracked
         jumps can have separated modes (strong drag or added mass) that one climb per
-        ensemble misses by luck (``granbayes._fitting._laplace_starts``).
+        ensemble misses by luck (``granbayes._fitting._laplace_starts``). With intrusion
+        curves each ensemble climbs once more, from the curves' own posterior mode.
     """
 
     n_walkers: int = 8

@@ -576,3 +576,7 @@ def test_start_modes_of_a_replicate_record_every_climb(joint_design: Path) -> No
     ends = np.array([float(v) for v in rows[0]["climb_ends"].split(";")])
     assert ends.size == FAST_CONFIG.sampler.n_ensembles and np.isfinite(ends).all()
     assert ends.max() > rows[0]["log_prob_truth"] - 5.0  # d = 5: the mode is ~2.5 above
+    # with intrusion curves, the global phase's climb of every ensemble, recorded apart
+    anchors = np.array([float(v) for v in rows[0]["anchor_ends"].split(";")])
+    assert anchors.size == FAST_CONFIG.sampler.n_ensembles
+    assert anchors.max() > rows[0]["log_prob_truth"] - 5.0
