@@ -541,21 +541,23 @@ def _batched_log_probs(
     models: Sequence[JumpModel], requests: Sequence[tuple[int, np.ndarray]]
 ) -> list[np.ndarray]:
     """Log-posteriors of ``[(model index, points (n, d))]``, one simulator call for all."""
-    groups: dict[int, list[np.ndarray]] = {}
-    for i, points in requests:
-        groups.setdefault(i, []).extend(points)
-    lps = _log_probs(models, groups)
-    return _split(lps, requests)
+    return _split(_log_probs(models, _grouped(requests)), requests)
 
 
 def _batched(
     value: Callable[[int, np.ndarray], np.ndarray], requests: Sequence[tuple[int, np.ndarray]]
 ) -> list[np.ndarray]:
     """``value(i, points)`` of ``[(model index, points (n, d))]``, one call per model."""
+    groups = _grouped(requests)
+    return _split({i: value(i, np.array(pts)) for i, pts in groups.items()}, requests)
+
+
+def _grouped(requests: Sequence[tuple[int, np.ndarray]]) -> dict[int, list[np.ndarray]]:
+    """The points of ``[(model index, points (n, d))]`` concatenated per model, in order."""
     groups: dict[int, list[np.ndarray]] = {}
     for i, points in requests:
         groups.setdefault(i, []).extend(points)
-    return _split({i: value(i, np.array(pts)) for i, pts in groups.items()}, requests)
+    return groups
 
 
 def _split(
