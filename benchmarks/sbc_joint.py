@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 from pathlib import Path
 
 from granbayes import Prior, default_priors, load_experiment, load_measurements, stats
@@ -98,6 +99,12 @@ def main(argv: list[str] | None = None) -> int:
     (HERE / "results" / "sbc_joint.json").write_text(
         json.dumps(res.summary, indent=1, default=str) + "\n"
     )
+    # the ranks and their ECDF figure, committed beside the table
+    for name, saved in (
+        ("ranks.csv", "sbc_joint_ranks.csv"),
+        ("sbc_ecdf.png", "sbc_joint_ecdf.png"),
+    ):
+        shutil.copyfile(args.out / name, HERE / "results" / saved)
     lines = [
         "# SBC of the joint fit: heights + tracked jumps + intrusion curves (SYNTHETIC)",
         "",
