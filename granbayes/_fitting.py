@@ -749,6 +749,15 @@ def _polish(ask, u: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, 
     return -value, u
 
 
+def _separation(model: JumpModel, mode_gap: float) -> float:
+    """Nats below a mode beyond which a point is in a worse-supported mode [nats].
+
+    The sampler's ``mode_gap``, or three standard deviations of a ``d``-dimensional
+    normal's log-density (``sqrt(d / 2)``), whichever is larger.
+    """
+    return max(mode_gap, 3.0 * np.sqrt(model.ndim / 2.0))
+
+
 def _closed_form_anchors(
     models: Sequence[JumpModel],
     bounds: Mapping[int, np.ndarray],
@@ -916,7 +925,7 @@ def _laplace_starts(
     for (i, e), ends in climbed.items():
         top = max(value for value, _ in ends)
         modes[i, e] = next(u for value, u in ends if value == top)
-        gap = max(mode_gap, 3.0 * np.sqrt(models[i].ndim / 2.0))
+        gap = _separation(models[i], mode_gap)
         lower = sorted(value for value, _ in ends if value < top - gap)
         if lower and notes is not None:
             notes.setdefault(i, []).append(
@@ -966,7 +975,7 @@ def _laplace_starts(
         if len(mine) < 2:
             continue
         best = max(mine, key=lambda pair: heights[pair])
-        gap = max(mode_gap, 3.0 * np.sqrt(models[i].ndim / 2.0))
+        gap = _separation(models[i], mode_gap)
         low = [pair for pair in mine if heights[pair] < heights[best] - gap]
         for pair in low:
             source[pair] = best
