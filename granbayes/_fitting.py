@@ -530,18 +530,14 @@ def _uses_laplace(model: JumpModel, start: str) -> bool:
     return start == "laplace"
 
 
-def _log_probs(models: Sequence[JumpModel], groups: Mapping[int, list[np.ndarray]]):
-    """Log-posterior of point groups per model index, one simulator call for all."""
-    order = list(groups)
-    evs = evaluate_models([models[i] for i in order], [np.array(groups[i]) for i in order])
-    return {i: ev.log_prob for i, ev in zip(order, evs, strict=True)}
-
-
 def _batched_log_probs(
     models: Sequence[JumpModel], requests: Sequence[tuple[int, np.ndarray]]
 ) -> list[np.ndarray]:
     """Log-posteriors of ``[(model index, points (n, d))]``, one simulator call for all."""
-    return _split(_log_probs(models, _grouped(requests)), requests)
+    groups = _grouped(requests)
+    order = list(groups)
+    evs = evaluate_models([models[i] for i in order], [np.array(groups[i]) for i in order])
+    return _split({i: ev.log_prob for i, ev in zip(order, evs, strict=True)}, requests)
 
 
 def _batched(
@@ -648,31 +644,17 @@ def _evolve(
     pairs = list(points)
     n_prop = 24
     scale = {p: 0.05 * (bounds[p[0]][1] - bounds[p[0]][0]) for p in pairs}
-    groups: dict[int, list[np.ndarray]] = {}
-    for p in pairs:
-        groups.setdefault(p[0], []).append(points[p])
-    lps = _log_probs(models, groups)
-    seen: dict[int, int] = {}
-    value = {}
-    for p in pairs:
-        j = seen.get(p[0], 0)
-        value[p] = lps[p[0]][j]
-        seen[p[0]] = j + 1
+    values = _batched_log_probs(models, [(p[0], points[p][None, :]) for p in pairs])
+    value = {p: v[0] for p, v in zip(pairs, values, strict=True)}
     for _ in range(_EVOLVE_ROUNDS):
-        groups = {}
         props = {}
         for p in pairs:
             lo, hi = bounds[p[0]]
             rng = point_rngs[p] if point_rngs and p in point_rngs else rngs[p[0]]
             step = rng.standard_normal((n_prop, len(lo)))
             props[p] = np.clip(points[p] + scale[p] * step, lo, hi)
-            groups.setdefault(p[0], []).extend(props[p])
-        lps = _log_probs(models, groups)
-        seen = {}
-        for p in pairs:
-            j = seen.get(p[0], 0)
-            f = lps[p[0]][j : j + n_prop]
-            seen[p[0]] = j + n_prop
+        values = _batched_log_probs(models, [(p[0], props[p]) for p in pairs])
+        for p, f in zip(pairs, values, strict=True):
             k = int(np.argmax(f))
             width = bounds[p[0]][1] - bounds[p[0]][0]
             if f[k] > value[p]:
@@ -938,24 +920,18 @@ def _laplace_starts(
     hessians = {}
     centre_values: dict[tuple[int, int], np.ndarray] = {}
     for _ in range(2):  # the second pass at half the standard deviation the first found
-        groups: dict[int, list[np.ndarray]] = {}
-        where = {}
+        requests = []
         for pair in pairs:
             lo, hi = bounds[pair[0]]
             # a mode on a bound of the prior: the differences are taken just inside it
             # (the other coordinates' curvature there)
             centre = np.clip(modes[pair], lo + steps[pair], hi - steps[pair])
-            pts = _hessian_points(centre, steps[pair])
-            groups.setdefault(pair[0], [])
-            where[pair] = (len(groups[pair[0]]), len(pts))
-            groups[pair[0]].extend(pts)
-        lps = _log_probs(models, groups)
-        for pair in pairs:
+            requests.append((pair[0], _hessian_points(centre, steps[pair])))
+        for pair, values in zip(pairs, _batched_log_probs(models, requests), strict=True):
             lo, hi = bounds[pair[0]]
-            start, n = where[pair]
-            centre_values[pair] = lps[pair[0]][start : start + n]
+            centre_values[pair] = values
             with np.errstate(invalid="ignore"):  # a difference that left the support
-                H = _hessian(lps[pair[0]][start : start + n], steps[pair])
+                H = _hessian(values, steps[pair])
             # a coordinate whose mode is on a bound of its prior has no curvature to invert
             # (the posterior piles on the bound): it starts at the floor's width
             edge = (modes[pair] - lo < steps[pair]) | (hi - modes[pair] < steps[pair])
