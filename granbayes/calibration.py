@@ -90,9 +90,11 @@ __all__ = [
     "as_good_as_truth",
     "case_design",
     "clopper_pearson",
+    "flip_rates",
     "fresh_deficit",
     "make_case",
     "outcome",
+    "primary_rows",
     "rederive_verdicts",
     "summarize",
 ]
@@ -425,6 +427,7 @@ def diagnose_case(
     *,
     seed: int,
     step_budget: int | None = STEP_BUDGET,
+    sampler_replicate: int = 0,
 ) -> list[dict[str, Any]]:
     """Campaign task: make a case, run ``diagnose`` on it and record the outcome.
 
@@ -441,17 +444,27 @@ def diagnose_case(
     step_budget : int, optional
         Sampler steps (:data:`STEP_BUDGET`) after which the case is stopped and recorded
         with the verdict ``over_budget`` (None: no budget).
+    sampler_replicate : int, default 0
+        0: ``diagnose`` with the case's own sampler seed. ``r > 0``: the same case (the
+        same data, drawn from ``seed``) diagnosed again with another sampler seed, the
+        ``(r + 1)``-th child of ``seed`` after the case's: the Monte Carlo sensitivity of
+        the verdict (:func:`flip_rates`).
 
     Returns
     -------
     list of dict
-        One row: the truth summary, the verdict, what was added, the gains, the misfit
-        statistics, the round-1 candidates (JSON text) for :func:`rederive_verdicts`, the
-        sampler steps and the wall time [s].
+        One row: the truth summary, the sampler replicate, the verdict, what was added and
+        the claim (each round's term with the terms it is not distinguished from), the
+        gains, the misfit statistics, the round-1 candidates (JSON text) for
+        :func:`rederive_verdicts`, the sampler steps and the wall time [s].
     """
-    case_seed, diag_seed = (
-        int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(2)
-    )
+    if sampler_replicate < 0:
+        raise ValueError(f"sampler_replicate must be >= 0, got {sampler_replicate}")
+    # the children of ``seed`` do not depend on how many are spawned: replicate 0 keeps
+    # the sampler seed the study had before replicates existed
+    children = np.random.SeedSequence(seed).spawn(2 + sampler_replicate)
+    case_seed = int(children[0].generate_state(1)[0])
+    diag_seed = int(children[1 + sampler_replicate].generate_state(1)[0])
     case = make_case(kind, case_seed)
     counter = StepCounter(step_budget)
     truth = {
@@ -463,6 +476,7 @@ def diagnose_case(
         "phis": "/".join(f"{p:g}" for p in case.truth["phis"]),
         "freqs_hz": "/".join(f"{f:g}" for f in case.truth["freqs_hz"]),
         "trials": case.truth["trials"],
+        "sampler_replicate": int(sampler_replicate),
     }
     t0 = time.perf_counter()
     try:
@@ -505,6 +519,7 @@ def diagnose_case(
             "verdict": rec.verdict.value,
             "added": "+".join(sel.added),
             "indistinguishable": "+".join(sorted({t.term for t in sel.indistinguishable})),
+            "claim": _claim(rec),
             "elpd_gain": sel.elpd_gain,
             "elpd_gain_se": sel.elpd_gain_se,
             "elpd_gain_cells": sel.elpd_gain_cells,
@@ -925,6 +940,23 @@ def outcome(row: Mapping[str, Any]) -> str:
     return FALSE_CLAIM if verdict == "extended" else NOT_DETECTED
 
 
+def primary_rows(results: pd.DataFrame) -> pd.DataFrame:
+    """The rows of sampler replicate 0: one per case (rows without the column are).
+
+    Parameters
+    ----------
+    results : pandas.DataFrame
+        Rows of :func:`diagnose_case`.
+
+    Returns
+    -------
+    pandas.DataFrame
+    """
+    if "sampler_replicate" not in results:
+        return results
+    return results[results["sampler_replicate"].fillna(0).astype(int) == 0]
+
+
 def summarize(results: pd.DataFrame) -> pd.DataFrame:
     """Error rates per case kind, with binomial standard errors.
 
@@ -946,7 +978,8 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
     Parameters
     ----------
     results : pandas.DataFrame
-        Rows of :func:`diagnose_case`.
+        Rows of :func:`diagnose_case`. Only sampler replicate 0 of each case counts (the
+        other replicates diagnose the same data again: :func:`flip_rates`).
 
     Returns
     -------
@@ -954,7 +987,7 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
         One row per case kind.
     """
     rows = []
-    results = results.copy()
+    results = primary_rows(results).copy()
     results["added"] = results["added"].fillna("")
     ties = results.get("indistinguishable", pd.Series("", index=results.index))
     results["indistinguishable"] = ties.fillna("")
@@ -994,6 +1027,129 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
     order = {k: i for i, k in enumerate(CASE_KINDS)}
     out = pd.DataFrame(rows)
     return out.sort_values("kind", key=lambda k: k.map(order), kind="stable").reset_index(drop=True)
+
+
+def _claim_of(row: Mapping[str, Any]) -> str:
+    """A row's claim (:func:`_claim`); rows made before it was recorded: the added terms."""
+    claim = row.get("claim")
+    if isinstance(claim, str):
+        return claim
+    added = row.get("added")
+    return added if isinstance(added, str) else ""
+
+
+def _best_round1(row: Mapping[str, Any]) -> tuple[str, float, float]:
+    """The round-1 candidate with the largest ELPD gain: term, gain and its SE [nats]."""
+    text = row.get("round1")
+    fitted = [
+        c
+        for c in (json.loads(text) if isinstance(text, str) and text else [])
+        if c.get("elpd_diff_vs_current") is not None
+        and np.isfinite(float(c["elpd_diff_vs_current"]))
+    ]
+    if not fitted:
+        return "", float("nan"), float("nan")
+    best = max(fitted, key=lambda c: float(c["elpd_diff_vs_current"]))
+    return best["term"], float(best["elpd_diff_vs_current"]), float(best["elpd_diff_vs_current_se"])
+
+
+def flip_rates(results: pd.DataFrame, level: float = 0.95) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Monte Carlo sensitivity of the verdicts: each case diagnosed with two sampler seeds.
+
+    Every row of a sampler replicate ``r > 0`` (:func:`diagnose_case`) is paired with the
+    row of replicate 0 of the same case (``kind`` and ``index``): the same data, another
+    sampler seed. A pair *flips* when a user would read another conclusion: the verdict or
+    the claim differs (the terms named, each with the terms reported as not distinguished
+    from it, so that two runs naming either of two tied terms do not count as a flip).
+
+    Parameters
+    ----------
+    results : pandas.DataFrame
+        Rows of :func:`diagnose_case`; rows without ``sampler_replicate`` are replicate 0.
+    level : float, default 0.95
+        Level of the exact (Clopper-Pearson) interval of each rate.
+
+    Returns
+    -------
+    rates : pandas.DataFrame
+        One row per case kind with pairs, then ``all``: ``pairs``, ``verdict_flips`` (the
+        verdict differs), ``flips`` (verdict or claim), ``outcome_flips`` (right in one
+        run and not in the other, :func:`outcome`), ``flip_rate`` = flips / pairs and its
+        interval ``flip_lo``, ``flip_hi``.
+    flipped : pandas.DataFrame
+        One row per flipped pair, where the rule's margins are to be examined: per run
+        (suffixes ``_0`` and ``_r``) the verdict, the claim, the reported gain and its SE,
+        the best round-1 candidate's ELPD gain and SE (the rule: > 4 nats and > 2 SE), the
+        baseline's largest misfit |z| and what the selected law leaves, against the
+        misfit threshold ``z_threshold``.
+    """
+    results = results.copy()
+    if "sampler_replicate" not in results:
+        results["sampler_replicate"] = 0
+    results["sampler_replicate"] = results["sampler_replicate"].fillna(0).astype(int)
+    first = {
+        (r["kind"], int(r["index"])): r
+        for r in results[results["sampler_replicate"] == 0].to_dict("records")
+    }
+    pairs = []
+    for row in results[results["sampler_replicate"] > 0].to_dict("records"):
+        base = first.get((row["kind"], int(row["index"])))
+        if base is not None:
+            pairs.append((base, row))
+    counts: dict[str, dict[str, int]] = {}
+    flipped = []
+    for base, other in pairs:
+        verdict_flip = base["verdict"] != other["verdict"]
+        flip = verdict_flip or _claim_of(base) != _claim_of(other)
+        right = [outcome(r) in (RIGHT, RIGHT_TIED) for r in (base, other)]
+        for key in (base["kind"], "all"):
+            c = counts.setdefault(
+                key, {"pairs": 0, "verdict_flips": 0, "flips": 0, "outcome_flips": 0}
+            )
+            c["pairs"] += 1
+            c["verdict_flips"] += int(verdict_flip)
+            c["flips"] += int(flip)
+            c["outcome_flips"] += int(right[0] != right[1])
+        if flip:
+            entry: dict[str, Any] = {
+                "kind": base["kind"],
+                "index": int(base["index"]),
+                "sampler_replicate": int(other["sampler_replicate"]),
+                "z_threshold": base.get("z_threshold", np.nan),
+            }
+            for suffix, r in (("0", base), ("r", other)):
+                term, gain, se = _best_round1(r)
+                entry |= {
+                    f"verdict_{suffix}": r["verdict"],
+                    f"claim_{suffix}": _claim_of(r),
+                    f"elpd_gain_{suffix}": r.get("elpd_gain", np.nan),
+                    f"elpd_gain_se_{suffix}": r.get("elpd_gain_se", np.nan),
+                    f"round1_best_{suffix}": term,
+                    f"round1_gain_{suffix}": gain,
+                    f"round1_gain_se_{suffix}": se,
+                    f"baseline_max_abs_z_{suffix}": r.get("baseline_max_abs_z", np.nan),
+                    f"residual_max_abs_z_{suffix}": r.get("residual_max_abs_z", np.nan),
+                }
+            flipped.append(entry)
+    order = {k: i for i, k in enumerate((*CASE_KINDS, "all"))}
+    rows = []
+    for kind in sorted(counts, key=lambda k: order.get(k, len(order))):
+        c = counts[kind]
+        lo, hi = clopper_pearson(c["flips"], c["pairs"], level)
+        rows.append(
+            {"kind": kind, **c, "flip_rate": c["flips"] / c["pairs"], "flip_lo": lo, "flip_hi": hi}
+        )
+    columns = [
+        "kind",
+        "pairs",
+        "verdict_flips",
+        "flips",
+        "outcome_flips",
+        "flip_rate",
+        "flip_lo",
+        "flip_hi",
+    ]
+    return pd.DataFrame(rows, columns=columns), pd.DataFrame(flipped)
 
 
 # ----------------------------------------------------------------------------------------

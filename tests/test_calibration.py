@@ -26,9 +26,11 @@ from granbayes.calibration import (
     case_design,
     clopper_pearson,
     diagnose_case,
+    flip_rates,
     fresh_deficit,
     make_case,
     outcome,
+    primary_rows,
     rederive_verdicts,
     summarize,
 )
@@ -341,3 +343,127 @@ def test_outcome_judges_a_case_against_its_truth(row: dict, expected: str) -> No
     one = summarize(pd.DataFrame([{**_row(row["kind"], []), **row}])).iloc[0]
     assert bool(one["right"]) == got.startswith("right")
     assert bool(one["false_claim"]) == (got == "false claim")
+
+
+def _pair_row(kind, index, replicate, verdict, added="", claim=None, ties="", gain=20.0):
+    row = {
+        **_row(kind, [_cand(added or "drag", gain, 4.0)], verdict=verdict, added=added),
+        "index": index,
+        "sampler_replicate": replicate,
+        "indistinguishable": ties,
+        "elpd_gain": gain,
+        "elpd_gain_se": 4.0,
+        "residual_max_abs_z": 1.0,
+    }
+    if claim is not None:
+        row["claim"] = claim
+    return row
+
+
+def test_flip_rates_pair_each_case_with_its_first_diagnosis() -> None:
+    """Replicates pair with replicate 0 of the same case; a flip is another verdict or
+    another claim (naming either of two tied terms is the same claim), counted per kind and
+    over all with the exact interval; unpaired rows are left out; rows without the
+    ``sampler_replicate`` value are replicate 0, rows without ``claim`` claim their
+    added terms."""
+    rows = [
+        _pair_row("null", 0, np.nan, "baseline_adequate"),  # a row made before replicates
+        _pair_row("null", 0, 1, "baseline_adequate"),
+        # tied terms named either way: the same claim, but right in one run only
+        _pair_row("drag", 0, 0, "extended", "drag", "{drag|viscous}", "viscous"),
+        _pair_row("drag", 0, 1, "extended", "viscous", "{drag|viscous}", "drag"),
+        _pair_row("drag", 1, 0, "extended", "drag", "{drag}"),  # verdict flip
+        _pair_row("drag", 1, 1, "baseline_adequate", "", ""),
+        _pair_row("drag", 2, 0, "extended", "drag", "{drag}", gain=9.0),  # claim flip
+        _pair_row("drag", 2, 1, "extended", "drag", "{drag|viscous}", "viscous", gain=8.5),
+        _pair_row("drag", 3, 1, "extended", "drag", "{drag}"),  # no first diagnosis
+        _pair_row("drag", 4, 0, "extended", "drag"),  # no claim recorded: its added terms
+        _pair_row("drag", 4, 1, "extended", "drag"),
+    ]
+    rates, flipped = flip_rates(pd.DataFrame(rows))
+    r = rates.set_index("kind")
+    assert list(r.index) == ["null", "drag", "all"]
+    assert r.loc["null"][["pairs", "verdict_flips", "flips", "outcome_flips"]].tolist() == [
+        1,
+        0,
+        0,
+        0,
+    ]
+    assert r.loc["drag"][["pairs", "verdict_flips", "flips", "outcome_flips"]].tolist() == [
+        4,
+        1,
+        2,
+        2,
+    ]
+    assert r.loc["all", "pairs"] == 5 and r.loc["all", "flips"] == 2
+    assert r.loc["all", "flip_rate"] == pytest.approx(0.4)
+    assert (r.loc["all", "flip_lo"], r.loc["all", "flip_hi"]) == pytest.approx(
+        clopper_pearson(2, 5)
+    )
+    assert sorted(flipped["index"]) == [1, 2]
+    two = flipped.set_index("index").loc[2]
+    assert (two["claim_0"], two["claim_r"]) == ("{drag}", "{drag|viscous}")
+    assert (two["round1_gain_0"], two["round1_gain_r"]) == (9.0, 8.5)
+    assert two["round1_best_0"] == "drag" and two["round1_gain_se_r"] == 4.0
+
+
+def test_summaries_count_each_case_once() -> None:
+    """The rates come from each case's first diagnosis: a replicate's row does not count."""
+    rows = [
+        _pair_row("null", 0, 0, "baseline_adequate"),
+        _pair_row("null", 0, 1, "extended", "drag"),
+    ]
+    s = summarize(pd.DataFrame(rows)).set_index("kind")
+    assert s.loc["null", "n"] == 1 and s.loc["null", "right"] == 1.0
+    assert len(primary_rows(pd.DataFrame(rows))) == 1
+
+
+def test_a_sampler_replicate_diagnoses_the_same_data_with_another_seed(monkeypatch) -> None:
+    """Replicate 0 keeps the sampler seed the study always had (the second child of the
+    task's seed); replicate 1 diagnoses the same table with a third child's seed."""
+    import granbayes.calibration as calibration
+
+    seen = []
+
+    def stop(experiment, table, settings, *, seed, **kwargs):
+        seen.append((table.copy(), seed))
+        raise OverBudget("stopped by the test")
+
+    monkeypatch.setattr(calibration, "diagnose", stop)
+    rows = [diagnose_case("null", 0, seed=7, sampler_replicate=r)[0] for r in (0, 1)]
+    assert [row["sampler_replicate"] for row in rows] == [0, 1]
+    assert rows[0]["sigma_mm"] == rows[1]["sigma_mm"]
+    pd.testing.assert_frame_equal(seen[0][0], seen[1][0])
+    children = np.random.SeedSequence(7).spawn(3)
+    assert seen[0][1] == int(children[1].generate_state(1)[0])
+    assert seen[1][1] == int(children[2].generate_state(1)[0])
+    with pytest.raises(ValueError, match="sampler_replicate"):
+        diagnose_case("null", 0, seed=7, sampler_replicate=-1)
+
+
+def test_the_study_diagnoses_each_case_with_two_sampler_seeds() -> None:
+    """``calibrate_verdicts.tasks``: the first diagnosis keeps its task name and seed (a
+    committed study resumes), the replicate follows it with the same seed."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "calibrate_verdicts.py"
+    spec = importlib.util.spec_from_file_location("calibrate_verdicts", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    one = module.tasks(["null", "drag"], 2, 1, 5, sampler_seeds=1)
+    two = module.tasks(["null", "drag"], 2, 1, 5)
+    assert [t.task_id for t in one] == ["null-000", "drag-000", "null-001"]
+    assert [t.task_id for t in two] == [
+        "null-000",
+        "null-000-s1",
+        "drag-000",
+        "drag-000-s1",
+        "null-001",
+        "null-001-s1",
+    ]
+    first = {t.task_id: t for t in one}
+    for t in two:
+        base = first[t.task_id.removesuffix("-s1")]
+        assert t.seed == base.seed and t.args == base.args
+        assert t.kwargs == ({"sampler_replicate": 1} if t.task_id.endswith("-s1") else {})
