@@ -80,12 +80,16 @@ __all__ = [
     "Case",
     "OUTCOMES",
     "OverBudget",
+    "POWER_DESIGN",
+    "POWER_SIZES",
     "StepCounter",
     "MISCALIBRATION",
     "diagnose_case",
     "diagnose_folder",
     "diagnose_miscalibrated",
     "design_tie_case",
+    "detection_sizes",
+    "effect_size",
     "extra_jumps",
     "as_good_as_truth",
     "case_design",
@@ -94,6 +98,8 @@ __all__ = [
     "fresh_deficit",
     "make_case",
     "outcome",
+    "power_case",
+    "power_table",
     "primary_rows",
     "rederive_verdicts",
     "summarize",
@@ -195,10 +201,23 @@ def _k_law(rng: np.random.Generator) -> tuple[float, float, float]:
     )
 
 
-def _draw(kind: str, seed: int, trials: int | None) -> tuple[dict[str, Any], np.random.Generator]:
-    """Everything a case draws before its heights, and the generator its noise continues."""
+def _draw(
+    kind: str,
+    seed: int,
+    trials: int | None,
+    size: float | None = None,
+    design: Mapping[str, tuple[int, int] | tuple[float, float]] | None = None,
+) -> tuple[dict[str, Any], np.random.Generator]:
+    """Everything a case draws before its heights, and the generator its noise continues.
+
+    ``size`` fixes the effect's value (drawn all the same, so the other draws do not
+    move); ``design`` draws the design from :data:`POWER_DESIGN`-like ranges instead of
+    the study's two volume fractions and two frequencies.
+    """
     if kind not in CASE_KINDS:
         raise ValueError(f"unknown case kind {kind!r}; expected one of {', '.join(CASE_KINDS)}")
+    if size is not None and kind == "null":
+        raise ValueError("a null case has no effect to size")
     rng = np.random.default_rng(seed)
     robot = Robot(
         m_motor=float(rng.uniform(0.8, 1.2)),
@@ -209,20 +228,34 @@ def _draw(kind: str, seed: int, trials: int | None) -> tuple[dict[str, Any], np.
         foot_radius=float(rng.uniform(0.025, 0.04)),
     )
     amplitude_mm = float(rng.uniform(16.0, 20.0))
-    phis = tuple(sorted(float(p) for p in rng.choice(_PHIS, size=2, replace=False)))
-    freqs = tuple(sorted(float(f) for f in rng.choice(_FREQS_HZ, size=2, replace=False)))
-    sigma_mm = float(rng.uniform(1.5, 3.0))
-    if trials is None:
-        trials = int(rng.choice(_TRIALS))
+    if design is None:
+        phis = tuple(sorted(float(p) for p in rng.choice(_PHIS, size=2, replace=False)))
+        freqs = tuple(sorted(float(f) for f in rng.choice(_FREQS_HZ, size=2, replace=False)))
+        sigma_mm = float(rng.uniform(1.5, 3.0))
+        if trials is None:
+            trials = int(rng.choice(_TRIALS))
+    else:
+        n_phi = int(rng.integers(design["n_phis"][0], design["n_phis"][1] + 1))
+        n_freq = int(rng.integers(design["n_freqs"][0], design["n_freqs"][1] + 1))
+        phis = tuple(sorted(float(p) for p in rng.choice(_PHIS, size=n_phi, replace=False)))
+        freqs = tuple(sorted(float(f) for f in rng.choice(_FREQS_HZ, size=n_freq, replace=False)))
+        sigma_mm = float(rng.uniform(*design["sigma_mm"]))
+        if trials is None:
+            trials = int(rng.integers(design["trials"][0], design["trials"][1] + 1))
     k0, k1, k2 = _k_law(rng)
     effect: dict[str, float] = {}
     strength = 0.0
     if kind in EFFECT_RANGES:
         effect = {n: float(rng.uniform(*r)) for n, r in EFFECT_RANGES[kind].items()}
+        if size is not None:
+            ((name, _),) = effect.items()
+            effect = {name: float(size)}
     elif kind in OUT_OF_LIBRARY:
         strength = float(rng.uniform(*OUT_OF_LIBRARY[kind]))
         if kind == "depth_dependent_drag":
             effect = {"c_d": float(rng.uniform(*_DEPTH_DRAG_C_D))}
+        if size is not None:
+            strength = float(size)
     truth = {
         "robot": dataclasses.asdict(robot),
         "amplitude_mm": amplitude_mm,
@@ -258,7 +291,15 @@ def case_design(kind: str, seed: int, trials: int | None = None) -> dict[str, An
     return _draw(kind, seed, trials)[0]
 
 
-def make_case(kind: str, seed: int, trials: int | None = None, replicate: int = 0) -> Case:
+def make_case(
+    kind: str,
+    seed: int,
+    trials: int | None = None,
+    replicate: int = 0,
+    *,
+    size: float | None = None,
+    design: Mapping[str, tuple[int, int] | tuple[float, float]] | None = None,
+) -> Case:
     """A SYNTHETIC data set of the given kind (module docstring), drawn from ``seed``.
 
     The true heights come from the independent oracle
@@ -277,35 +318,31 @@ def make_case(kind: str, seed: int, trials: int | None = None, replicate: int = 
         0: the case itself. ``r > 0``: an independent repetition of the same experiment
         (same robot, design, truth and scatter; new noise from the stream ``(seed, r)``),
         on which a fitted law's predictions are scored out of sample.
+    size : float, optional
+        The effect's value instead of a draw from its range: the library term's parameter
+        (:data:`EFFECT_RANGES`) or the out-of-library strength (:data:`OUT_OF_LIBRARY`);
+        the power curves' cases (:data:`POWER_SIZES`).
+    design : mapping, optional
+        Ranges of the design instead of the study's (two volume fractions, two
+        frequencies): ``n_phis``, ``n_freqs`` and ``trials`` (inclusive integer ranges)
+        and ``sigma_mm`` (:data:`POWER_DESIGN`).
 
     Returns
     -------
     Case
     """
-    truth, rng = _draw(kind, seed, trials)
+    truth, rng = _draw(kind, seed, trials, size, design)
     robot = Robot(**truth["robot"])
     amplitude_mm = truth["amplitude_mm"]
     experiment = Experiment(robot=robot, command=CommandSettings(amplitude_mm=amplitude_mm))
     phis, freqs, trials = truth["phis"], truth["freqs_hz"], truth["trials"]
-    k0, k1, k2 = truth["k_law"]
-    effect, strength = truth["effect"], truth["out_of_library_strength"]
     sigma_mm = truth["sigma_mm"]
-    physics = (_PHYSICS[kind](strength),) if kind in _PHYSICS else None
     rows = []
+    heights = _cell_heights(kind, truth, experiment)
     for phi in phis:
-        x = phi - _PHI_C
-        k = k0 + k1 * x + k2 * x * x
         for freq in freqs:
-            settings = CommandSettings(amplitude_mm=amplitude_mm, freq_hz=freq)
-            cell_exp = dataclasses.replace(experiment, command=settings)
             for command in COMMAND_NAMES:
-                scale = 1.0
-                if kind == "pause_stiffening" and command in _HELD:
-                    scale = 1.0 + strength
-                elif kind == "rate_stiffening":
-                    scale = 1.0 + strength * (freq - 10.0) / 10.0
-                params = {"k": k * scale, **effect}
-                height = simulate_height_scipy(command, phi, params, cell_exp, effects=physics)
+                height = heights[phi, freq, command]
                 for trial in range(1, trials + 1):
                     rows.append(
                         {
@@ -327,6 +364,67 @@ def make_case(kind: str, seed: int, trials: int | None = None, replicate: int = 
     )
     true_height = table["true_height_mm"].to_numpy(dtype=float)
     return Case(kind, experiment, table.drop(columns="true_height_mm"), truth, true_height)
+
+
+def _cell_heights(
+    kind: str, truth: Mapping[str, Any], experiment: Experiment, with_effect: bool = True
+) -> dict[tuple[float, float, str], float]:
+    """The oracle's noise-free height [mm] of every cell (phi, frequency, command).
+
+    ``with_effect=False``: the same robot, design and ``k(phi)`` without the case's
+    effect (the baseline law's truth; for ``depth_dependent_drag`` without its drag too),
+    for the effect's size in height.
+    """
+    k0, k1, k2 = truth["k_law"]
+    effect = truth["effect"] if with_effect else {}
+    strength = truth["out_of_library_strength"] if with_effect else 0.0
+    physics = (_PHYSICS[kind](strength),) if with_effect and kind in _PHYSICS else None
+    amplitude_mm = truth["amplitude_mm"]
+    out = {}
+    for phi in truth["phis"]:
+        x = phi - _PHI_C
+        k = k0 + k1 * x + k2 * x * x
+        for freq in truth["freqs_hz"]:
+            settings = CommandSettings(amplitude_mm=amplitude_mm, freq_hz=freq)
+            cell_exp = dataclasses.replace(experiment, command=settings)
+            for command in COMMAND_NAMES:
+                scale = 1.0
+                if kind == "pause_stiffening" and command in _HELD:
+                    scale = 1.0 + strength
+                elif kind == "rate_stiffening":
+                    scale = 1.0 + strength * (freq - 10.0) / 10.0
+                params = {"k": k * scale, **effect}
+                out[phi, freq, command] = simulate_height_scipy(
+                    command, phi, params, cell_exp, effects=physics
+                )
+    return out
+
+
+def effect_size(case: Case) -> dict[str, float]:
+    """How large a case's effect is in the heights, before any fit (oracle, no noise).
+
+    Parameters
+    ----------
+    case : Case
+        A case with an effect (not ``null``).
+
+    Returns
+    -------
+    dict
+        ``effect_rms_mm``: the root mean square over cells of the height change the effect
+        makes [mm]; ``effect_snr``: the change over every jump in units of the scatter,
+        ``sqrt(sum (dh / sigma)^2)`` (twice the log-likelihood ratio of the truth against
+        the effect-free law with the same ``k``, in expectation, is its square). Both
+        overstate what a fit sees: the baseline law refits ``k`` and absorbs part of it.
+    """
+    on = _cell_heights(case.kind, case.truth, case.experiment)
+    off = _cell_heights(case.kind, case.truth, case.experiment, with_effect=False)
+    dh = np.array([on[c] - off[c] for c in on])
+    sigma = case.truth["sigma_mm"]
+    return {
+        "effect_rms_mm": float(np.sqrt(np.mean(dh**2))),
+        "effect_snr": float(np.sqrt(case.truth["trials"] * np.sum((dh / sigma) ** 2))),
+    }
 
 
 def fresh_deficit(
@@ -465,7 +563,34 @@ def diagnose_case(
     children = np.random.SeedSequence(seed).spawn(2 + sampler_replicate)
     case_seed = int(children[0].generate_state(1)[0])
     diag_seed = int(children[1 + sampler_replicate].generate_state(1)[0])
-    case = make_case(kind, case_seed)
+    return _diagnosed(
+        kind,
+        index,
+        settings,
+        case_seed,
+        diag_seed,
+        step_budget,
+        {"sampler_replicate": int(sampler_replicate)},
+    )
+
+
+def _diagnosed(
+    kind: str,
+    index: int,
+    settings: DiagnoseSettings | None,
+    case_seed: int,
+    diag_seed: int,
+    step_budget: int | None,
+    extra: Mapping[str, Any],
+    size: float | None = None,
+    design: Mapping[str, Any] | None = None,
+) -> list[dict[str, Any]]:
+    """:func:`diagnose_case`'s row: a case diagnosed with ``diag_seed``.
+
+    The case is ``make_case(kind, case_seed, size=size, design=design)``; ``extra``
+    columns follow the truth's.
+    """
+    case = make_case(kind, case_seed, size=size, design=design)
     counter = StepCounter(step_budget)
     truth = {
         "kind": kind,
@@ -476,7 +601,7 @@ def diagnose_case(
         "phis": "/".join(f"{p:g}" for p in case.truth["phis"]),
         "freqs_hz": "/".join(f"{f:g}" for f in case.truth["freqs_hz"]),
         "trials": case.truth["trials"],
-        "sampler_replicate": int(sampler_replicate),
+        **extra,
     }
     t0 = time.perf_counter()
     try:
@@ -505,7 +630,7 @@ def diagnose_case(
     sel = rec.selected
     # the selected law against the baseline on a new run of the same experiment: the gain
     # a user would see on fresh data, free of the selection's optimism
-    fresh_case = make_case(kind, case_seed, replicate=1)
+    fresh_case = make_case(kind, case_seed, replicate=1, size=size, design=design)
     fresh = fresh_case.table
     gain_fresh, gain_fresh_se = _paired_sum(
         d.selected.log_predictive_density(fresh) - d.baseline.log_predictive_density(fresh)
@@ -1150,6 +1275,224 @@ def flip_rates(results: pd.DataFrame, level: float = 0.95) -> tuple[pd.DataFrame
         "flip_hi",
     ]
     return pd.DataFrame(rows, columns=columns), pd.DataFrame(flipped)
+
+
+# ----------------------------------------------------------------------------------------
+# where the tool stops seeing: detection probability against effect size
+# ----------------------------------------------------------------------------------------
+#: Effect values of the power curves per kind, weakest first: a geometric ladder from the
+#: study's range (:data:`EFFECT_RANGES`, :data:`OUT_OF_LIBRARY`) down towards the noise
+#: floor (the library term's parameter [SI] or the out-of-library strength). For
+#: ``unloading`` a smaller ratio is the stronger effect (20: absent), for
+#: ``janssen_saturation`` a shorter screening length.
+POWER_SIZES: dict[str, tuple[float, ...]] = {
+    "drag": (5.0, 10.0, 20.0, 40.0),
+    "added_mass": (0.25, 0.5, 1.0, 2.0),
+    "stiffening": (1.25e4, 2.5e4, 5.0e4, 1.0e5),
+    "viscous": (2.5, 5.0, 10.0, 20.0),
+    "compaction": (0.0625, 0.125, 0.25, 0.5),
+    "unloading": (12.0, 8.0, 5.0, 3.0),
+    "depth_dependent_drag": (12.5, 25.0, 50.0, 100.0),
+    "janssen_saturation": (0.48, 0.24, 0.12, 0.06),
+    "pause_relaxation": (0.125, 0.25, 0.5, 1.0),
+    "rate_dependent_strength": (0.025, 0.05, 0.1, 0.2),
+}
+#: Designs of the power curves' cases, like a lab's: 2-5 volume fractions, 1-2 actuation
+#: frequencies, 2-5 repeated jumps per cell (inclusive) and a scatter of 1.5-5 mm.
+POWER_DESIGN: dict[str, tuple[int, int] | tuple[float, float]] = {
+    "n_phis": (2, 5),
+    "n_freqs": (1, 2),
+    "trials": (2, 5),
+    "sigma_mm": (1.5, 5.0),
+}
+
+
+def power_case(
+    kind: str,
+    size: float,
+    index: int,
+    settings: DiagnoseSettings | None = None,
+    *,
+    seed: int,
+    step_budget: int | None = STEP_BUDGET,
+) -> list[dict[str, Any]]:
+    """Campaign task of the power curves: a case with its effect at ``size``, diagnosed.
+
+    The case is drawn like the study's (:func:`make_case`) but on a lab-like design
+    (:data:`POWER_DESIGN`) and with the effect's value fixed; the row is
+    :func:`diagnose_case`'s with ``size`` and the effect's size in the heights
+    (:func:`effect_size`).
+
+    Parameters
+    ----------
+    kind : str
+        A library term or an out-of-library effect (:data:`POWER_SIZES`).
+    size : float
+        The effect's value (the term's parameter [SI] or the out-of-library strength).
+    index : int
+        Replicate number at this kind and size (recorded).
+    settings : DiagnoseSettings, optional
+        The rule and sampler settings.
+    seed : int
+        The task's seed: the case is drawn from it, ``diagnose`` gets a spawned one.
+    step_budget : int, optional
+        As :func:`diagnose_case`'s.
+
+    Returns
+    -------
+    list of dict
+        One row.
+    """
+    if kind == "null":
+        raise ValueError("a power curve needs an effect: kind 'null' has none")
+    case_seed, diag_seed = (
+        int(c.generate_state(1)[0]) for c in np.random.SeedSequence(seed).spawn(2)
+    )
+    sized = effect_size(make_case(kind, case_seed, size=size, design=POWER_DESIGN))
+    return _diagnosed(
+        kind,
+        index,
+        settings,
+        case_seed,
+        diag_seed,
+        step_budget,
+        {"size": float(size), **sized},
+        size=size,
+        design=POWER_DESIGN,
+    )
+
+
+def power_table(results: pd.DataFrame, level: float = 0.95) -> pd.DataFrame:
+    """Detection probability per kind and effect size, with exact intervals.
+
+    A case is *detected* when its outcome is right (:func:`outcome`): for a library term,
+    ``extended`` with exactly that term (a tie reported with it counts); for an effect
+    outside the library, ``misfit_remains`` or a law as good as the truth on a fresh
+    replicate, so there "detected" means "not misled", and a ``baseline_adequate`` verdict
+    is a miss. ``named`` counts any term named.
+
+    Parameters
+    ----------
+    results : pandas.DataFrame
+        Rows of :func:`power_case`.
+    level : float, default 0.95
+        Level of the exact (Clopper-Pearson) intervals.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Per kind and size (weakest first, :data:`POWER_SIZES` order): ``n``,
+        ``detected``, its fraction ``p`` and interval ``p_lo``, ``p_hi``,
+        ``baseline_adequate`` (fraction), ``named`` (fraction naming a term),
+        ``over_budget``, and the medians of ``effect_rms_mm`` and ``effect_snr``.
+    """
+    results = results.copy()
+    results["added"] = results["added"].fillna("")
+    rows = []
+    for (kind, size), g in results.groupby(["kind", "size"], sort=False):
+        right = g.apply(outcome, axis=1).isin((RIGHT, RIGHT_TIED))
+        n, k = len(g), int(right.sum())
+        lo, hi = clopper_pearson(k, n, level)
+        ladder = POWER_SIZES.get(kind, ())
+        rows.append(
+            {
+                "kind": kind,
+                "size": float(size),
+                "step": ladder.index(size) if size in ladder else len(ladder),
+                "n": n,
+                "detected": k,
+                "p": k / n,
+                "p_lo": lo,
+                "p_hi": hi,
+                "baseline_adequate": float((g["verdict"] == "baseline_adequate").mean()),
+                "named": float((g["added"] != "").mean()),
+                "over_budget": float((g["verdict"] == "over_budget").mean()),
+                "effect_rms_mm": float(g["effect_rms_mm"].median()),
+                "effect_snr": float(g["effect_snr"].median()),
+            }
+        )
+    order = {k: i for i, k in enumerate(CASE_KINDS)}
+    out = pd.DataFrame(rows)
+    if out.empty:
+        return out
+    out = out.sort_values(["kind", "step"], key=lambda c: c.map(order) if c.name == "kind" else c)
+    return out.drop(columns="step").reset_index(drop=True)
+
+
+def _logistic(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Logistic regression of 0/1 ``y`` on ``x`` about its mean: centre, intercept, slope.
+
+    Maximum likelihood with a weak ridge on the slope (0.01 b1^2 / 2), so that cases
+    completely separated by size (every small one missed, every large one detected) give
+    a steep finite curve instead of an infinite slope; ``nan`` for fewer than 2 cases.
+    """
+    from scipy.optimize import minimize
+
+    if len(x) < 2:
+        return 0.0, float("nan"), float("nan")
+    centre = float(np.mean(x))
+    u = x - centre
+
+    def nll(b: np.ndarray) -> float:
+        eta = b[0] + b[1] * u
+        return float(np.sum(np.logaddexp(0.0, eta) - y * eta) + 0.005 * b[1] ** 2)
+
+    b0, b1 = minimize(nll, np.zeros(2), method="BFGS").x
+    return centre, float(b0), float(b1)
+
+
+def detection_sizes(
+    results: pd.DataFrame, column: str = "effect_snr", levels: Sequence[float] = (0.5, 0.9)
+) -> pd.DataFrame:
+    """Effect sizes at which a kind is detected with the given probabilities.
+
+    Per kind, a logistic regression of detection (:func:`power_table`'s rule) on the
+    logarithm of ``column`` over the cases (:func:`_logistic`), read at each level:
+    ``size_50``, ``size_90`` (``nan`` where the fit has no positive slope: detection did
+    not grow with the size). Read with the per-size rates, whose intervals show how much
+    the curve can be trusted.
+
+    Parameters
+    ----------
+    results : pandas.DataFrame
+        Rows of :func:`power_case`.
+    column : str, default ``"effect_snr"``
+        The size measure: ``effect_snr`` (comparable across kinds), ``effect_rms_mm``
+        or ``size`` (the effect's own parameter; for ``unloading`` and
+        ``janssen_saturation`` smaller is stronger, so its slope is negative).
+    levels : sequence of float
+        Detection probabilities to read.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``kind``, ``n``, the measured range of ``column`` (``range_lo``, ``range_hi``;
+        a size outside it is extrapolated), ``slope`` (per unit of log size), then
+        ``size_<level>`` per level.
+    """
+    results = results.copy()
+    results["added"] = results["added"].fillna("")
+    rows = []
+    for kind, g in results.groupby("kind", sort=False):
+        x = np.log(g[column].to_numpy(dtype=float))
+        y = g.apply(outcome, axis=1).isin((RIGHT, RIGHT_TIED)).to_numpy(dtype=float)
+        ok = np.isfinite(x)
+        x, y = x[ok], y[ok]
+        row: dict[str, Any] = {"kind": kind, "n": len(x)}
+        row["range_lo"], row["range_hi"] = (
+            (float(np.exp(x.min())), float(np.exp(x.max()))) if len(x) else (np.nan, np.nan)
+        )
+        centre, b0, b1 = _logistic(x, y)
+        flip = column == "size" and kind in ("unloading", "janssen_saturation")
+        usable = np.isfinite(b1) and (b1 < 0 if flip else b1 > 0)
+        row["slope"] = float(b1)
+        for level in levels:
+            logit = np.log(level / (1.0 - level))
+            row[f"size_{round(100 * level)}"] = (
+                float(np.exp(centre + (logit - b0) / b1)) if usable else float("nan")
+            )
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 # ----------------------------------------------------------------------------------------

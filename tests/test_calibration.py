@@ -26,6 +26,7 @@ from granbayes.calibration import (
     case_design,
     clopper_pearson,
     diagnose_case,
+    effect_size,
     flip_rates,
     fresh_deficit,
     make_case,
@@ -467,3 +468,144 @@ def test_the_study_diagnoses_each_case_with_two_sampler_seeds() -> None:
         base = first[t.task_id.removesuffix("-s1")]
         assert t.seed == base.seed and t.args == base.args
         assert t.kwargs == ({"sampler_replicate": 1} if t.task_id.endswith("-s1") else {})
+
+
+def test_a_sized_case_is_the_drawn_case_with_the_effect_fixed() -> None:
+    """``size`` fixes the effect's value and nothing else: the same robot, design and
+    noise draws, so the heights differ only through the effect."""
+    drawn, sized = make_case("viscous", 3, trials=2), make_case("viscous", 3, trials=2, size=5.0)
+    assert sized.truth["effect"] == {"b": 5.0}
+    assert {k: v for k, v in sized.truth.items() if k != "effect"} == {
+        k: v for k, v in drawn.truth.items() if k != "effect"
+    }
+    noise_drawn = drawn.table["height_mm"].to_numpy() - drawn.true_height_mm
+    noise_sized = sized.table["height_mm"].to_numpy() - sized.true_height_mm
+    np.testing.assert_allclose(noise_sized, noise_drawn, atol=1e-9)
+    assert not np.allclose(sized.true_height_mm, drawn.true_height_mm)
+    ool = make_case("janssen_saturation", 3, trials=2, size=0.2)
+    assert ool.truth["out_of_library_strength"] == 0.2
+    with pytest.raises(ValueError, match="null case has no effect"):
+        make_case("null", 3, size=1.0)
+
+
+def test_power_designs_span_their_ranges() -> None:
+    """Over 40 seeds (no simulation: ``_draw``) every design range of POWER_DESIGN is
+    respected and each number of volume fractions occurs (a miss: 4 x (3/4)^40 = 4e-5)."""
+    from granbayes.calibration import POWER_DESIGN, _draw
+
+    drawn = [_draw("drag", seed, None, None, POWER_DESIGN)[0] for seed in range(40)]
+    assert {len(d["phis"]) for d in drawn} == {2, 3, 4, 5}
+    assert {len(d["freqs_hz"]) for d in drawn} == {1, 2}
+    assert {d["trials"] for d in drawn} <= {2, 3, 4, 5}
+    assert all(1.5 <= d["sigma_mm"] <= 5.0 for d in drawn)
+    assert all(len(set(d["phis"])) == len(d["phis"]) for d in drawn)
+
+
+def test_effect_size_vanishes_without_the_effect_and_grows_with_it() -> None:
+    """No drag, no change; a weak drag changes the heights about in proportion (the first
+    order of the energy it takes: ratio 2 within 10% for c_d 1 -> 2 kg/m); the SNR is the
+    RMS change over the scatter times sqrt(jumps)."""
+    none = effect_size(make_case("drag", 5, trials=2, size=0.0))
+    assert none["effect_rms_mm"] == 0.0 and none["effect_snr"] == 0.0
+    one = make_case("drag", 5, trials=2, size=1.0)
+    weak, twice = effect_size(one), effect_size(make_case("drag", 5, trials=2, size=2.0))
+    assert weak["effect_rms_mm"] > 0
+    assert twice["effect_rms_mm"] / weak["effect_rms_mm"] == pytest.approx(2.0, rel=0.1)
+    n_jumps = len(one.table)
+    assert weak["effect_snr"] == pytest.approx(
+        weak["effect_rms_mm"] / one.truth["sigma_mm"] * np.sqrt(n_jumps)
+    )
+
+
+def test_power_table_counts_detections_per_size() -> None:
+    """Rates per kind and size in ladder order with exact intervals; a tie with the truth
+    counts as detected, a wrong term does not."""
+    from granbayes.calibration import power_table
+
+    def row(size, verdict, added="", ties=""):
+        return {
+            **_row("drag", [], verdict=verdict, added=added),
+            "size": size,
+            "indistinguishable": ties,
+            "effect_rms_mm": size / 10,
+            "effect_snr": size,
+        }
+
+    rows = [
+        row(20.0, "extended", "drag"),
+        row(20.0, "extended", "drag", "viscous"),
+        row(20.0, "extended", "viscous"),
+        row(5.0, "baseline_adequate"),
+        row(5.0, "extended", "drag"),
+    ]
+    t = power_table(pd.DataFrame(rows))
+    assert t["size"].tolist() == [5.0, 20.0]
+    assert t["detected"].tolist() == [1, 2] and t["n"].tolist() == [2, 3]
+    assert (t.loc[1, "p_lo"], t.loc[1, "p_hi"]) == pytest.approx(clopper_pearson(2, 3))
+    assert t["named"].tolist() == [0.5, 1.0] and t.loc[0, "baseline_adequate"] == 0.5
+
+
+def test_detection_sizes_recover_a_known_logistic_curve() -> None:
+    """Cases detected with probability 1 / (1 + exp(-2 (log s - log 10))) (seeded, 2,000
+    cases over s in [1, 100]): the fitted size at 50% is 10 and at 90% 10 exp(log(9) / 2)
+    = 30, within 10% (about 4 SE of the fit's log size, SE ~ 0.025); a kind whose
+    detection falls with size gets no size (nan)."""
+    from granbayes.calibration import detection_sizes
+
+    rng = np.random.default_rng(0)
+    s = np.exp(rng.uniform(0.0, np.log(100.0), 2000))
+    hit = rng.uniform(size=s.size) < 1 / (1 + np.exp(-2 * (np.log(s) - np.log(10.0))))
+    rows = pd.DataFrame(
+        {
+            "kind": "drag",
+            "verdict": np.where(hit, "extended", "baseline_adequate"),
+            "added": np.where(hit, "drag", ""),
+            "n_residual_misfit": 0,
+            "effect_snr": s,
+            "size": s,
+        }
+    )
+    d = detection_sizes(rows).set_index("kind")
+    assert d.loc["drag", "size_50"] == pytest.approx(10.0, rel=0.1)
+    assert d.loc["drag", "size_90"] == pytest.approx(10.0 * 3.0, rel=0.1)
+    assert d.loc["drag", "range_lo"] >= 1.0 and d.loc["drag", "range_hi"] <= 100.0
+    falling = rows.assign(effect_snr=1.0 / s)
+    assert np.isnan(detection_sizes(falling).loc[0, "size_50"])
+
+
+def test_a_power_case_row_carries_its_size_and_design(monkeypatch) -> None:
+    """``power_case``: the effect at the given size on a lab-like design, the effect's size
+    in the heights recorded; a null kind is refused."""
+    import granbayes.calibration as calibration
+
+    def stop(experiment, table, settings, *, seed, **kwargs):
+        raise OverBudget("stopped by the test")
+
+    monkeypatch.setattr(calibration, "diagnose", stop)
+    (row,) = calibration.power_case("compaction", 0.25, 4, seed=9)
+    assert row["size"] == 0.25 and row["index"] == 4 and row["verdict"] == "over_budget"
+    assert row["truth_effect"] == "c_comp=0.25"
+    assert 2 <= len(row["phis"].split("/")) <= 5 and 2 <= row["trials"] <= 5
+    assert row["effect_rms_mm"] > 0 and row["effect_snr"] > 0
+    with pytest.raises(ValueError, match="needs an effect"):
+        calibration.power_case("null", 1.0, 0, seed=9)
+
+
+def test_the_power_study_covers_every_size_with_distinct_seeds() -> None:
+    """``power_curves.tasks``: every kind x size x replicate once, replicate-major, seeds
+    distinct."""
+    import importlib.util
+    from pathlib import Path
+
+    from granbayes.calibration import POWER_SIZES
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "power_curves.py"
+    spec = importlib.util.spec_from_file_location("power_curves", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    todo = module.tasks(["drag", "unloading"], 2, 1)
+    assert len(todo) == 2 * 4 * 2 and len({t.task_id for t in todo}) == len(todo)
+    assert len({t.seed for t in todo}) == len(todo)
+    assert [t.task_id for t in todo[:2]] == ["drag-size0-000", "drag-size1-000"]
+    assert todo[8].task_id == "drag-size0-001"
+    assert [t.args[1] for t in todo[:8]] == [*POWER_SIZES["drag"], *POWER_SIZES["unloading"]]
