@@ -143,17 +143,24 @@ class SamplerSettings:
         evolution strategy, Powell, L-BFGS-B; ``granbayes._fitting``) and the walkers
         drawn from the Laplace approximation there (normal, covariance the inverse of the
         finite-difference Hessian of the log-posterior), so that they start
-        at the posterior's own scale and orientation; ``auto``, ``laplace`` for a fit with
-        tracked jumps or intrusion curves (whose posteriors are narrow: from a ball the
-        ensembles spent most of their 1,500-2,550 steps contracting, 6-10x the 250 steps
-        from a Laplace start) and ``search`` for heights alone (the start every study of
-        heights alone was measured with).
+        at the posterior's own scale and orientation; ``auto`` (the default, kept as the
+        name saved fits record), ``laplace``. With tracked jumps or intrusion curves, whose
+        posteriors are narrow, ensembles started from a ball spent most of their
+        1,500-2,550 steps contracting, 6-10x the 250 steps from a Laplace start; with
+        heights alone, the runs of the slower laws are shorter too (reference data, seed
+        1: depth + drag + compaction 12.2 s instead of 22.3 s, the longest run 300 steps
+        instead of 750; depth + drag 9.2 s instead of 10.2 s), and a sampled robot
+        calibration 14.3-15.2 s instead of 19.6-25.7 s (``benchmarks/
+        bench_calibrated_fit.py``). Until 2026-11-27 ``auto`` chose ``search`` for heights
+        alone; the studies of heights made before say so.
     start_climbs : int
-        Climbs per ensemble of a Laplace start (from its searched point and its next best
-        prior draws; the ensemble starts at the highest mode): a posterior of tracked
-        jumps can have separated modes (strong drag or added mass) that one climb per
-        ensemble misses by luck (``granbayes._fitting._laplace_starts``). With intrusion
-        curves each ensemble climbs once more, from the curves' own posterior mode.
+        Climbs per ensemble of a Laplace start where the fit has tracked jumps or intrusion
+        curves (from its searched point and its next best prior draws; the ensemble starts
+        at the highest mode): such a posterior can have separated modes (strong drag or
+        added mass) that one climb per ensemble misses by luck
+        (``granbayes._fitting._laplace_starts``). With intrusion curves each ensemble
+        climbs once more, from the curves' own posterior mode. Fits of heights alone climb
+        once per ensemble, from the searched point (``granbayes._fitting._climbs``).
     """
 
     n_walkers: int = 8

@@ -45,6 +45,7 @@ from granbayes._fitting import (
     data_hash,
     fit,
 )
+from granbayes._likelihood import evaluate_models
 from granbayes._priors import default_priors
 from granbayes._sampler import (
     CheckpointMismatchError,
@@ -524,7 +525,10 @@ def test_warm_start_from_a_nested_parent(
         return original(evaluate, runs, *args, **kwargs)
 
     monkeypatch.setattr(gfit, "run_side_by_side", spy)
-    config = FitSettings(terms=("depth", "drag"), sampler=WARM, n_threads=1, n_prior_draws=0)
+    # the search start walks ensemble 0 from the parent's draws (a Laplace start climbs
+    # from the best of them: test_warm_start_climbs_from_the_parents_best_draw)
+    search = dataclasses.replace(WARM, start="search")
+    config = FitSettings(terms=("depth", "drag"), sampler=search, n_threads=1, n_prior_draws=0)
     child = fit(experiment, table, config, seed=5, warm_start=recovery_fit.datatree)
     (initial,) = starts
     model = child.parts[0].model
@@ -552,6 +556,39 @@ def test_warm_start_from_a_nested_parent(
     )
     np.testing.assert_allclose(child.datatree.log_prior["log_prior"].values, density, rtol=1e-10)
     # the extension ends close to (here: not far below) its parent
+    parent_loo, child_loo = gstats.loo(recovery_fit.datatree), gstats.loo(child.datatree)
+    diff, se = gstats.elpd_difference(child_loo["elpd_i"], parent_loo["elpd_i"])
+    assert diff > -(DiagnoseSettings().nested_tolerance + 2.0 * se), (diff, se)
+
+
+def test_warm_start_climbs_from_the_parents_best_draw(
+    recovery_fit: FitResult, one_phi: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With the default (Laplace) start, ensemble 0 of a warm-started extension is climbed
+    from the parent's best draw: its best walker lies no lower than that draw (drag off)
+    less the spread of a 3-dimensional normal's log-density about its mode (the walkers
+    are Laplace draws about the climbed mode, which is at least as high as the draw:
+    chi-square(3) / 2 exceeds 6 nats with probability 6e-5 per walker, so the best of the
+    ensemble's walkers misses by that margin only if every walker does), and the fit
+    ends not far below the parent, as with the search start."""
+    experiment, table = load_folder(one_phi)
+    starts: list[list[np.ndarray]] = []
+    original = gfit.run_side_by_side
+
+    def spy(evaluate, runs, *args, **kwargs):
+        starts.extend([np.array(x) for x in r.initial] for r in runs)
+        return original(evaluate, runs, *args, **kwargs)
+
+    monkeypatch.setattr(gfit, "run_side_by_side", spy)
+    config = FitSettings(terms=("depth", "drag"), sampler=WARM, n_threads=1, n_prior_draws=0)
+    child = fit(experiment, table, config, seed=5, warm_start=recovery_fit.datatree)
+    (initial,) = starts
+    model = child.parts[0].model
+    warm = gfit._warm_positions(model, recovery_fit.datatree, PHI_C)
+    (parent_lp, walker_lp) = (
+        ev.log_prob for ev in evaluate_models([model, model], [warm, initial[0]])
+    )
+    assert walker_lp.max() >= parent_lp.max() - 6.0, (walker_lp.max(), parent_lp.max())
     parent_loo, child_loo = gstats.loo(recovery_fit.datatree), gstats.loo(child.datatree)
     diff, se = gstats.elpd_difference(child_loo["elpd_i"], parent_loo["elpd_i"])
     assert diff > -(DiagnoseSettings().nested_tolerance + 2.0 * se), (diff, se)
