@@ -408,11 +408,12 @@ def _find_starts_many(
 
     Each model draws from its own generator in the order :func:`find_starts` does, so its
     starts are those of :func:`find_starts` alone. ``start`` is
-    :attr:`SamplerSettings.start`: with ``laplace`` (or ``auto`` and measurements beyond
-    heights) each ensemble's point is polished and its walkers drawn from the Laplace
-    approximation there (:func:`_laplace_starts`; ``mode_gap`` as the sampler's, and what
-    it did is appended to ``notes[model index]``), climbing from ``climbs`` points per
-    ensemble: its searched point and the next best of its own prior draws.
+    :attr:`SamplerSettings.start`: with ``laplace`` or ``auto`` each ensemble's point is
+    polished and its walkers drawn from the Laplace approximation there
+    (:func:`_laplace_starts`; ``mode_gap`` as the sampler's, and what it did is appended to
+    ``notes[model index]``), climbing from ``climbs`` points per ensemble where the model
+    has measurements beyond heights (its searched point and the next best of its own prior
+    draws) and from its searched point alone otherwise (:func:`_climbs`).
     """
     k = len(models)
     ndims = [m.ndim for m in models]
