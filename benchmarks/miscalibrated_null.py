@@ -16,14 +16,13 @@ Usage: ``python benchmarks/miscalibrated_null.py [--seeds 20] [--workers 2] [--o
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import pandas as pd
 
 from granbayes.calibration import MISCALIBRATION, clopper_pearson, diagnose_miscalibrated
-from granbayes.campaign import ClusterSettings, Task, run_campaign
+from granbayes.campaign import ClusterSettings, Task, finished_tasks, run_campaign
 from granbayes.report import markdown_table
 
 HERE = Path(__file__).resolve().parent
@@ -85,15 +84,13 @@ def main(argv: list[str] | None = None) -> int:
     if offsets:
         description["offsets_sd"] = offsets
     if args.finished_only:
-        folder = args.out if args.out.exists() else Path(f"{args.out}.partial")
-        done = [json.loads(f.read_text()) for f in sorted(folder.glob("tasks/*.json"))]
-        rows = [r for d in done if d["status"] == "ok" for r in d["rows"]]
-        table = pd.DataFrame(rows).sort_values(["seed", "calibration"])
+        done, results = finished_tasks(args.out)  # a study under way or stopped
+        table = results.sort_values(["seed", "calibration"])
         note = (
-            f"A STOPPED study: {len(rows)} of {len(tasks)} diagnoses finished; the others "
+            f"A STOPPED study: {len(table)} of {len(tasks)} diagnoses finished; the others "
             "were still running when it was stopped and are not counted."
         )
-        failed = 0
+        failed = int((done["status"] != "ok").sum())
     else:
         res = run_campaign(
             tasks,

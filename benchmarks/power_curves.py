@@ -47,7 +47,14 @@ from granbayes.calibration import (
     power_case,
     power_table,
 )
-from granbayes.campaign import ClusterSettings, Task, run_campaign, spawn_seeds
+from granbayes.campaign import (
+    CampaignError,
+    ClusterSettings,
+    Task,
+    finished_tasks,
+    run_campaign,
+    spawn_seeds,
+)
 from granbayes.report import markdown_table
 
 HERE = Path(__file__).resolve().parent
@@ -159,16 +166,14 @@ def write_summary(out: Path, results: pd.DataFrame, seed: int, n_planned: int) -
 
 def summarize_finished(out: Path, n_planned: int, seed: int) -> int:
     """Summary of the cases a stopped study finished (read from its task files)."""
-    folder = out if (out / "tasks").is_dir() else out.with_name(out.name + ".partial")
-    rows = []
-    for path in sorted((folder / "tasks").glob("*.json")):
-        record = json.loads(path.read_text())
-        if record["status"] == "ok":
-            rows.extend(record["rows"])
-    if not rows:
-        print(f"error: no finished case in {folder}")
+    try:
+        _, results = finished_tasks(out)
+    except CampaignError as err:
+        print(f"error: {err}")
         return 1
-    results = pd.DataFrame(rows)
+    if results.empty:
+        print(f"error: no finished case in {out}")
+        return 1
     out.mkdir(parents=True, exist_ok=True)
     results.to_csv(out / "results.csv", index=False)
     write_summary(out, results, seed, n_planned)

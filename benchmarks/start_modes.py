@@ -25,7 +25,6 @@ Usage: ``python benchmarks/start_modes.py [--replicates 50] [--workers 2] [--out
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -37,7 +36,13 @@ from granbayes import default_priors, load_experiment, load_measurements
 from granbayes._fitting import FitSettings
 from granbayes._sbc import replicate_start_modes
 from granbayes.calibration import clopper_pearson
-from granbayes.campaign import ClusterSettings, Task, run_campaign, spawn_seeds
+from granbayes.campaign import (
+    ClusterSettings,
+    Task,
+    finished_tasks,
+    run_campaign,
+    spawn_seeds,
+)
 from granbayes.report import markdown_table
 
 HERE = Path(__file__).resolve().parent
@@ -128,16 +133,13 @@ def main(argv: list[str] | None = None) -> int:
     ]
     note = ""
     if args.finished_only:
-        partial = Path(f"{args.out}.partial")  # a study under way or stopped
-        folder = partial if partial.exists() else args.out
-        done = [json.loads(f.read_text()) for f in sorted(folder.glob("tasks/*.json"))]
-        ok = [d for d in done if d["status"] == "ok"]
-        results = pd.DataFrame([r for d in ok for r in d["rows"]])
-        elapsed = pd.Series([float(d["elapsed_s"]) for d in ok])
-        n_failed = len(done) - len(ok)
+        done, results = finished_tasks(args.out)  # a study under way or stopped
+        ok = done["status"] == "ok"
+        elapsed = done.loc[ok, "elapsed_s"].astype(float)
+        n_failed = int((~ok).sum())
         note = (
-            f" A STOPPED study: {len(ok)} of {len(tasks)} tasks finished; the others were "
-            "not run and are not counted."
+            f" A STOPPED study: {int(ok.sum())} of {len(tasks)} tasks finished; the others "
+            "were not run and are not counted."
         )
     else:
         res = run_campaign(

@@ -71,6 +71,7 @@ __all__ = [
     "CampaignResult",
     "Task",
     "campaign_fingerprint",
+    "finished_tasks",
     "local_cluster_size",
     "run_campaign",
     "spawn_seeds",
@@ -498,13 +499,8 @@ def _finished(path: Path, task: Task) -> bool:
     )
 
 
-def _gather(
-    tasks_dir: Path, tasks: Sequence[Task], work: Path, results_name: str
-) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Read every task file and write ``tasks.csv`` and the tidy results table."""
-    records = [
-        json.loads((tasks_dir / f"{t.task_id}.json").read_text(encoding="utf-8")) for t in tasks
-    ]
+def _tables(records: Sequence[Mapping[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The task table (:data:`TASK_COLUMNS`) and the tidy results of task records."""
     task_rows = [{c: r.get(c) for c in TASK_COLUMNS if c != "n_rows"} for r in records]
     for row, r in zip(task_rows, records, strict=True):
         row["n_rows"] = len(r.get("rows") or [])
@@ -514,7 +510,52 @@ def _gather(
         for r in records
         for row in (r.get("rows") or [])
     ]
-    results = pd.DataFrame(result_rows)
+    return task_table, pd.DataFrame(result_rows)
+
+
+def finished_tasks(out: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """What a campaign has finished so far, whether it is running, stopped or done.
+
+    Reads the task files of ``OUT.partial`` (a campaign under way or stopped, which holds
+    every result of a resumed one) or, if there is none, of ``OUT``, without running
+    anything: a stopped study can be summarised from the tasks that finished, and says how
+    many did.
+
+    Parameters
+    ----------
+    out : str or Path
+        The campaign's output folder, as given to :func:`run_campaign`.
+
+    Returns
+    -------
+    tasks : pandas.DataFrame
+        One row per task file (:data:`TASK_COLUMNS`; failed tasks too, by ``status``).
+    results : pandas.DataFrame
+        The rows of the successful tasks, with ``task_id`` and ``worker``
+        (:attr:`CampaignResult.results`).
+
+    Raises
+    ------
+    CampaignError
+        When neither folder holds task files.
+    """
+    out = Path(out)
+    work = partial_folder(out)
+    folder = work if work.exists() else out
+    paths = sorted((folder / "tasks").glob("*.json"))
+    if not paths:
+        raise CampaignError(f"{folder}: no finished task (no tasks/*.json)")
+    return _tables([json.loads(path.read_text(encoding="utf-8")) for path in paths])
+
+
+def _gather(
+    tasks_dir: Path, tasks: Sequence[Task], work: Path, results_name: str
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Read every task file and write ``tasks.csv`` and the tidy results table."""
+    records = [
+        json.loads((tasks_dir / f"{t.task_id}.json").read_text(encoding="utf-8")) for t in tasks
+    ]
+    task_table, results = _tables(records)
     with atomic_path(work / "tasks.csv") as tmp:
         task_table.to_csv(tmp, index=False)
     with atomic_path(work / results_name) as tmp:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import socket
 import sys
@@ -21,6 +22,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import cloudpickle
+import pandas as pd
 import pytest
 from distributed import Client, LocalCluster
 
@@ -29,6 +31,7 @@ from granbayes.campaign import (
     ClusterSettings,
     Task,
     campaign_fingerprint,
+    finished_tasks,
     local_cluster_size,
     run_campaign,
     spawn_seeds,
@@ -127,6 +130,17 @@ def test_failure_is_recorded_and_others_finish_then_resume_reruns_only_it(
     assert not (out.with_name("camp.partial")).exists()
     record = json.loads((out / "tasks" / "t03.json").read_text())
     assert "Traceback" in record["traceback"]
+    # what has finished, read back without running: the finished folder, then the same
+    # files as a stopped campaign's OUT.partial
+    done, results = finished_tasks(out)
+    assert list(done["task_id"]) == [f"t{i:02d}" for i in range(6)]
+    assert list(done["status"]) == ["ok", "ok", "ok", "error", "ok", "ok"]
+    pd.testing.assert_frame_equal(results, res.results)
+    stopped = tmp_path / "stopped"
+    shutil.copytree(out, stopped.with_name("stopped.partial"))
+    pd.testing.assert_frame_equal(finished_tasks(stopped)[1], res.results)
+    with pytest.raises(CampaignError, match="no finished task"):
+        finished_tasks(tmp_path / "nothing")
 
     before = snapshot(out / "tasks")
     res2 = run_campaign(
