@@ -501,6 +501,19 @@ def test_datatree_round_trip(recovery_fit: FitResult, one_phi: Path, tmp_path: P
     assert len(back.attrs["data_sha256"]) == 64
 
 
+def _spy_on_starts(monkeypatch: pytest.MonkeyPatch) -> list[list[np.ndarray]]:
+    """The walkers' starting positions of every run the next fits sample (filled in)."""
+    starts: list[list[np.ndarray]] = []
+    original = gfit.run_side_by_side
+
+    def spy(evaluate, runs, *args, **kwargs):
+        starts.extend([np.array(x) for x in r.initial] for r in runs)
+        return original(evaluate, runs, *args, **kwargs)
+
+    monkeypatch.setattr(gfit, "run_side_by_side", spy)
+    return starts
+
+
 def test_warm_start_from_a_nested_parent(
     recovery_fit: FitResult, one_phi: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -517,14 +530,7 @@ def test_warm_start_from_a_nested_parent(
     (c_d is sampled in sqrt(c_d), so the Jacobian matters).
     """
     experiment, table = load_folder(one_phi)
-    starts: list[list[np.ndarray]] = []
-    original = gfit.run_side_by_side
-
-    def spy(evaluate, runs, *args, **kwargs):
-        starts.extend([np.array(x) for x in r.initial] for r in runs)
-        return original(evaluate, runs, *args, **kwargs)
-
-    monkeypatch.setattr(gfit, "run_side_by_side", spy)
+    starts = _spy_on_starts(monkeypatch)
     # the search start walks ensemble 0 from the parent's draws (a Laplace start climbs
     # from the best of them: test_warm_start_climbs_from_the_parents_best_draw)
     search = dataclasses.replace(WARM, start="search")
@@ -572,14 +578,7 @@ def test_warm_start_climbs_from_the_parents_best_draw(
     ensemble's walkers misses by that margin only if every walker does), and the fit
     ends not far below the parent, as with the search start."""
     experiment, table = load_folder(one_phi)
-    starts: list[list[np.ndarray]] = []
-    original = gfit.run_side_by_side
-
-    def spy(evaluate, runs, *args, **kwargs):
-        starts.extend([np.array(x) for x in r.initial] for r in runs)
-        return original(evaluate, runs, *args, **kwargs)
-
-    monkeypatch.setattr(gfit, "run_side_by_side", spy)
+    starts = _spy_on_starts(monkeypatch)
     config = FitSettings(terms=("depth", "drag"), sampler=WARM, n_threads=1, n_prior_draws=0)
     child = fit(experiment, table, config, seed=5, warm_start=recovery_fit.datatree)
     (initial,) = starts
