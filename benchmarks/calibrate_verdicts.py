@@ -35,6 +35,7 @@ import matplotlib
 matplotlib.use("Agg")
 import numpy as np
 import pandas as pd
+from _studies import add_campaign_options, chosen_kinds, summarize_finished  # this folder
 from matplotlib.figure import Figure
 
 from granbayes import __version__
@@ -55,14 +56,7 @@ from granbayes.calibration import (
     rederive_verdicts,
     summarize,
 )
-from granbayes.campaign import (
-    CampaignError,
-    ClusterSettings,
-    Task,
-    finished_tasks,
-    run_campaign,
-    spawn_seeds,
-)
+from granbayes.campaign import ClusterSettings, Task, run_campaign, spawn_seeds
 from granbayes.report import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -381,50 +375,22 @@ def write_summary(
     figure(results, summary).savefig(out / "rates.png", dpi=130)
 
 
-def summarize_finished(out: Path, n_planned: int, config, seed: int) -> int:
-    """Summary of the cases a stopped study finished (read from its task files)."""
-    try:
-        _, results = finished_tasks(out)
-    except CampaignError as err:
-        print(f"error: {err}")
-        return 1
-    if results.empty:
-        print(f"error: no finished case in {out}")
-        return 1
-    out.mkdir(parents=True, exist_ok=True)
-    results.to_csv(out / "results.csv", index=False)
-    write_summary(out, results, config, seed, n_planned=n_planned)
-    print((out / "summary.md").read_text())
-    return 0
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run (or resume) the study and write its results."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "verdicts")
+    add_campaign_options(parser, ROOT / "docs" / "verdicts", CASE_KINDS)
     parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument("--null", type=int, default=60, help="null cases (default 60)")
     parser.add_argument("--per-term", type=int, default=10, help="cases per effect (10)")
-    parser.add_argument("--kinds", default=",".join(CASE_KINDS), help="kinds to run")
     parser.add_argument(
         "--sampler-seeds",
         type=int,
         default=2,
         help="diagnoses of each case with different sampler seeds (default 2: the flip rate)",
     )
-    parser.add_argument("--workers", type=int, help="local Dask workers (default: cores)")
-    parser.add_argument("--scheduler", help="address of an existing Dask scheduler")
-    parser.add_argument("--resume", action="store_true", help="continue a killed study")
-    parser.add_argument(
-        "--summarize-only",
-        action="store_true",
-        help="write the summary of the cases finished so far (a stopped study) and exit",
-    )
     args = parser.parse_args(argv)
-    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
-    unknown = sorted(set(kinds) - set(CASE_KINDS))
-    if unknown:
-        print(f"error: --kinds: unknown {unknown}; expected {', '.join(CASE_KINDS)}")
+    kinds = chosen_kinds(args.kinds, CASE_KINDS)
+    if kinds is None:
         return 2
     config = DiagnoseSettings()
     if args.sampler_seeds < 1:
@@ -433,7 +399,10 @@ def main(argv: list[str] | None = None) -> int:
     todo = tasks(kinds, args.null, args.per_term, args.seed, args.sampler_seeds)
     if args.summarize_only:
         n_cases = sum(1 for t in todo if not t.kwargs)  # the first diagnosis of each case
-        return summarize_finished(args.out, n_cases, config, args.seed)
+        return summarize_finished(
+            args.out,
+            lambda results: write_summary(args.out, results, config, args.seed, n_cases),
+        )
     description = {
         "kind": "granbayes.calibration",
         "seed": args.seed,

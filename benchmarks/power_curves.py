@@ -36,6 +36,7 @@ import matplotlib
 matplotlib.use("Agg")
 import numpy as np
 import pandas as pd
+from _studies import add_campaign_options, chosen_kinds, summarize_finished  # this folder
 from matplotlib.figure import Figure
 
 from granbayes import __version__
@@ -47,14 +48,7 @@ from granbayes.calibration import (
     power_case,
     power_table,
 )
-from granbayes.campaign import (
-    CampaignError,
-    ClusterSettings,
-    Task,
-    finished_tasks,
-    run_campaign,
-    spawn_seeds,
-)
+from granbayes.campaign import ClusterSettings, Task, run_campaign, spawn_seeds
 from granbayes.report import markdown_table
 
 HERE = Path(__file__).resolve().parent
@@ -164,47 +158,21 @@ def write_summary(out: Path, results: pd.DataFrame, seed: int, n_planned: int) -
     figure(table).savefig(out / "power.png", dpi=130)
 
 
-def summarize_finished(out: Path, n_planned: int, seed: int) -> int:
-    """Summary of the cases a stopped study finished (read from its task files)."""
-    try:
-        _, results = finished_tasks(out)
-    except CampaignError as err:
-        print(f"error: {err}")
-        return 1
-    if results.empty:
-        print(f"error: no finished case in {out}")
-        return 1
-    out.mkdir(parents=True, exist_ok=True)
-    results.to_csv(out / "results.csv", index=False)
-    write_summary(out, results, seed, n_planned)
-    print((out / "summary.md").read_text())
-    return 0
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run (or resume) the study and write its results."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=HERE / "results" / "power")
+    add_campaign_options(parser, HERE / "results" / "power", list(POWER_SIZES))
     parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument("--per-size", type=int, default=10, help="cases per size (10)")
-    parser.add_argument("--kinds", default=",".join(POWER_SIZES), help="kinds to run")
-    parser.add_argument("--workers", type=int, help="local Dask workers (default: cores)")
-    parser.add_argument("--scheduler", help="address of an existing Dask scheduler")
-    parser.add_argument("--resume", action="store_true", help="continue a killed study")
-    parser.add_argument(
-        "--summarize-only",
-        action="store_true",
-        help="write the summary of the cases finished so far (a stopped study) and exit",
-    )
     args = parser.parse_args(argv)
-    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
-    unknown = sorted(set(kinds) - set(POWER_SIZES))
-    if unknown:
-        print(f"error: --kinds: unknown {unknown}; expected {', '.join(POWER_SIZES)}")
+    kinds = chosen_kinds(args.kinds, list(POWER_SIZES))
+    if kinds is None:
         return 2
     todo = tasks(kinds, args.per_size, args.seed)
     if args.summarize_only:
-        return summarize_finished(args.out, len(todo), args.seed)
+        return summarize_finished(
+            args.out, lambda results: write_summary(args.out, results, args.seed, len(todo))
+        )
     description = {
         "kind": "granbayes.calibration.power_case",
         "seed": args.seed,

@@ -442,13 +442,14 @@ def test_a_sampler_replicate_diagnoses_the_same_data_with_another_seed(monkeypat
         diagnose_case("null", 0, seed=7, sampler_replicate=-1)
 
 
-def test_the_study_diagnoses_each_case_with_two_sampler_seeds() -> None:
+def test_the_study_diagnoses_each_case_with_two_sampler_seeds(monkeypatch) -> None:
     """``calibrate_verdicts.tasks``: the first diagnosis keeps its task name and seed (a
     committed study resumes), the replicate follows it with the same seed."""
     import importlib.util
     from pathlib import Path
 
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "calibrate_verdicts.py"
+    monkeypatch.syspath_prepend(str(path.parent))  # its helpers (benchmarks/_studies.py)
     spec = importlib.util.spec_from_file_location("calibrate_verdicts", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -591,7 +592,7 @@ def test_a_power_case_row_carries_its_size_and_design(monkeypatch) -> None:
         calibration.power_case("null", 1.0, 0, seed=9)
 
 
-def test_the_power_study_covers_every_size_with_distinct_seeds() -> None:
+def test_the_power_study_covers_every_size_with_distinct_seeds(monkeypatch) -> None:
     """``power_curves.tasks``: every kind x size x replicate once, replicate-major, seeds
     distinct."""
     import importlib.util
@@ -600,6 +601,7 @@ def test_the_power_study_covers_every_size_with_distinct_seeds() -> None:
     from granbayes.calibration import POWER_SIZES
 
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "power_curves.py"
+    monkeypatch.syspath_prepend(str(path.parent))  # its helpers (benchmarks/_studies.py)
     spec = importlib.util.spec_from_file_location("power_curves", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
