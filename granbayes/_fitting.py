@@ -467,7 +467,7 @@ def _find_starts_many(
             x[i][better] = props[i][better, j[better]]
             f[i][better] = f_prop[better, j[better]]
             scale[i][~better] *= 0.5
-    laplace = [i for i in range(k) if _uses_laplace(models[i], start)]
+    laplace = list(range(k)) if start != "search" else []  # auto and laplace climb
     drawn = _laplace_starts(
         models, rngs, x, n_walkers, laplace, warms, mode_gap, notes, others, climb_ends
     )
@@ -522,11 +522,6 @@ _POLISH: tuple[str, ...] = ("powell", "lbfgs")
 #: Largest standard deviation of a Laplace start, as a fraction of the prior's width in
 #: the sampling coordinate (a flat or non-concave direction starts this wide).
 _LAPLACE_MAX_SD = 0.05
-
-
-def _uses_laplace(model: JumpModel, start: str) -> bool:
-    """Whether ``model``'s ensembles start from a Laplace approximation (``auto``: all)."""
-    return start in ("auto", "laplace")
 
 
 def _climbs(model: JumpModel, climbs: int) -> int:

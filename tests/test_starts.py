@@ -18,7 +18,6 @@ from granbayes._fitting import (
     _hessian,
     _hessian_points,
     _laplace_cov,
-    _uses_laplace,
     fit,
     part_models,
 )
@@ -74,18 +73,15 @@ def test_laplace_covariance_inverts_a_concave_hessian_and_bounds_the_rest() -> N
     assert np.all(np.linalg.eigvalsh(cov) > 0)
 
 
-def test_auto_start_is_laplace_climbing_thrice_beyond_heights_only(folder: Path) -> None:
-    """Every fit starts from a Laplace approximation unless told ``search``; the posteriors
-    of tracked jumps and intrusions get ``start_climbs`` climbs per ensemble (separated
-    modes), fits of heights alone one."""
+def test_laplace_starts_climb_thrice_beyond_heights_only(folder: Path) -> None:
+    """The posteriors of tracked jumps and intrusions get ``start_climbs`` climbs per
+    ensemble (separated modes), fits of heights alone one."""
     experiment = load_experiment(folder)
     priors = default_priors()
     settings = FitSettings(terms=("depth", "drag"))
     for use, climbs in ((["heights"], 1), (None, 3), (["heights", "intrusions"], 3)):
         data = load_measurements(folder, experiment, use)
         (_, model, _), *_ = part_models(experiment, data, settings, priors)
-        assert _uses_laplace(model, "auto") and _uses_laplace(model, "laplace")
-        assert not _uses_laplace(model, "search")
         assert _climbs(model, 3) == climbs
     with pytest.raises(ValueError, match="start"):
         SamplerSettings(start="mode")
