@@ -234,7 +234,12 @@ def plot_trace(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
     import arviz_plots as azp
 
     tree = _ensemble_tree(dt, var_names)
-    pc = azp.plot_trace(tree, var_names=list(var_names), backend="matplotlib")
+    pc = azp.plot_trace(
+        tree,
+        var_names=list(var_names),
+        backend="matplotlib",
+        figure_kwargs={"layout": "constrained"},  # titles clear of the row above's labels
+    )
     return pc.viz["figure"].item()
 
 
@@ -276,6 +281,7 @@ def plot_rank(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
         thin=True,
         stats={"thin": {"factor": factor if factor is not None else "auto"}},
         backend="matplotlib",
+        figure_kwargs={"layout": "constrained"},  # titles clear of the row above's labels
     )
     return pc.viz["figure"].item()
 
