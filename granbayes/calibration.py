@@ -417,13 +417,14 @@ def effect_size(case: Case) -> dict[str, float]:
         the effect-free law with the same ``k``, in expectation, is its square). Both
         overstate what a fit sees: the baseline law refits ``k`` and absorbs part of it.
     """
-    on = _cell_heights(case.kind, case.truth, case.experiment)
     off = _cell_heights(case.kind, case.truth, case.experiment, with_effect=False)
-    dh = np.array([on[c] - off[c] for c in on])
+    cells = zip(case.table["phi"], case.table["freq_hz"], case.table["command"], strict=True)
+    # every cell has the same number of trials: over jumps is over cells
+    dh = case.true_height_mm - np.array([off[c] for c in cells])
     sigma = case.truth["sigma_mm"]
     return {
         "effect_rms_mm": float(np.sqrt(np.mean(dh**2))),
-        "effect_snr": float(np.sqrt(case.truth["trials"] * np.sum((dh / sigma) ** 2))),
+        "effect_snr": float(np.sqrt(np.sum((dh / sigma) ** 2))),
     }
 
 
@@ -564,7 +565,7 @@ def diagnose_case(
     case_seed = int(children[0].generate_state(1)[0])
     diag_seed = int(children[1 + sampler_replicate].generate_state(1)[0])
     return _diagnosed(
-        kind,
+        make_case(kind, case_seed),
         index,
         settings,
         case_seed,
@@ -575,7 +576,7 @@ def diagnose_case(
 
 
 def _diagnosed(
-    kind: str,
+    case: Case,
     index: int,
     settings: DiagnoseSettings | None,
     case_seed: int,
@@ -587,10 +588,10 @@ def _diagnosed(
 ) -> list[dict[str, Any]]:
     """:func:`diagnose_case`'s row: a case diagnosed with ``diag_seed``.
 
-    The case is ``make_case(kind, case_seed, size=size, design=design)``; ``extra``
-    columns follow the truth's.
+    ``case`` is ``make_case(case.kind, case_seed, size=size, design=design)`` (its fresh
+    replicate is made the same way); ``extra`` columns follow the truth's.
     """
-    case = make_case(kind, case_seed, size=size, design=design)
+    kind = case.kind
     counter = StepCounter(step_budget)
     truth = {
         "kind": kind,
@@ -1348,15 +1349,15 @@ def power_case(
     case_seed, diag_seed = (
         int(c.generate_state(1)[0]) for c in np.random.SeedSequence(seed).spawn(2)
     )
-    sized = effect_size(make_case(kind, case_seed, size=size, design=POWER_DESIGN))
+    case = make_case(kind, case_seed, size=size, design=POWER_DESIGN)
     return _diagnosed(
-        kind,
+        case,
         index,
         settings,
         case_seed,
         diag_seed,
         step_budget,
-        {"size": float(size), **sized},
+        {"size": float(size), **effect_size(case)},
         size=size,
         design=POWER_DESIGN,
     )
