@@ -1,7 +1,7 @@
 """Reports of fits: tables, figures and a Markdown summary written into a folder.
 
 Figures are built with matplotlib's object API (no pyplot state), corner plots with
-``corner`` (>= 2.3) from plain arrays, and trace/rank plots through the ArviZ adapter
+``corner`` (>= 2.3) from plain arrays, and rank plots through the ArviZ adapter
 (:mod:`granbayes._datatree`).
 
 Also public here, for scripts that write results of their own (``analyses/``):

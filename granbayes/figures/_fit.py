@@ -23,6 +23,7 @@ from ..commands import COMMAND_NAMES
 from ..stats import CI_PROB, by_ensemble, eti_probs, run_diagnostics
 from ..stats._loo import _ignore_pareto_k_warning, _pit_tree
 from ..stats._sbc import _sbc_dataset
+from ..stats._summaries import _n_ensembles
 from ._style import COLORS, data_label, param_label
 
 
@@ -215,10 +216,16 @@ def _ensemble_tree(dt: xr.DataTree, var_names: Sequence[str]) -> xr.DataTree:
 
 
 def plot_trace(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
-    """Trace plot (``arviz_plots.plot_trace``), one line per independent ensemble.
+    """Trace of every walker, coloured by ensemble, with each ensemble's median per draw.
 
-    The ensembles, started apart, are what the stopping rule's R-hat compares; the
-    walkers of one ensemble move together and are not independent chains.
+    One panel per parameter and volume fraction: the kept draws of each walker as a thin
+    line and, per independent ensemble (started apart; the chains of the stopping rule's
+    R-hat), the median over its walkers at each kept draw as a thick one. Ensembles that
+    have not mixed show as medians at different levels, a walker stuck away from the
+    others as a flat thin line. Drawn here rather than by ``arviz_plots.plot_trace``, whose
+    chains would be either every walker (dozens of colours, no ensembles) or an ensemble's
+    walkers concatenated into one line (:func:`granbayes.stats.by_ensemble`): a band of
+    jumps between walkers at every draw, which hides both failures.
 
     Parameters
     ----------
@@ -231,16 +238,41 @@ def plot_trace(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
     -------
     matplotlib.figure.Figure
     """
-    import arviz_plots as azp
-
-    tree = _ensemble_tree(dt, var_names)
-    pc = azp.plot_trace(
-        tree,
-        var_names=list(var_names),
-        backend="matplotlib",
-        figure_kwargs={"layout": "constrained"},  # titles clear of the row above's labels
-    )
-    return pc.viz["figure"].item()
+    post = dt.posterior.to_dataset()
+    n_ens = _n_ensembles(dt) or 1
+    panels = []
+    for name in var_names:
+        da = post[name].transpose("chain", "draw", ...)
+        extra = [d for d in da.dims if d not in ("chain", "draw")]
+        stacked = da.stack(_panel=extra) if extra else da.expand_dims(_panel=[0], axis=-1)
+        for j in range(stacked.sizes["_panel"]):
+            at = stacked.isel(_panel=j)
+            where = ", ".join(f"{d} = {at[d].item():g}" for d in extra)
+            panels.append((name, where, at.values))
+    n_cols = min(4, len(panels))
+    n_rows = math.ceil(len(panels) / n_cols)
+    fig = Figure(figsize=(3.2 * n_cols, 2.2 * n_rows + 0.7), layout="constrained")
+    axes = fig.subplots(n_rows, n_cols, sharex=True, squeeze=False).ravel()
+    for ax, (name, where, values) in zip(axes, panels, strict=False):
+        draws = np.arange(values.shape[1])
+        # chains are the walkers, ensemble by ensemble (granbayes._sampler)
+        for e, walkers in enumerate(values.reshape(n_ens, -1, values.shape[1])):
+            colour = COLORS[e % len(COLORS)]
+            ax.plot(draws, walkers.T, color=colour, lw=0.4, alpha=0.25)
+            ax.plot(draws, np.median(walkers, axis=0), color=colour, lw=1.5, label=f"ensemble {e}")
+        ax.set_title(where, fontsize=9)
+        ax.set_ylabel(param_label(name), fontsize=9)
+        ax.tick_params(labelsize=8)
+    for ax in axes[len(panels) :]:
+        ax.set_visible(False)
+    for ax in axes[max(0, len(panels) - n_cols) : len(panels)]:
+        ax.set_xlabel("kept draw")
+        ax.tick_params(labelbottom=True)  # the lowest panel of its column
+    axes[0].legend(fontsize=7)
+    title = "Walkers' traces (thin) and each ensemble's median over its walkers (thick)"
+    label = data_label(dt)
+    fig.suptitle(f"{label}\n{title}" if label else title, fontsize=10)
+    return fig
 
 
 def plot_rank(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:

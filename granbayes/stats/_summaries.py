@@ -135,15 +135,10 @@ def by_ensemble(dt: xr.DataTree, group: str = "posterior") -> xr.Dataset:
         Dimensions ``chain`` (ensembles), ``draw`` (walkers x draws), then the variables' own.
     """
     ds = dt[group].to_dataset()
-    runs = json.loads(dt.attrs.get("runs", "[]"))
-    shapes = {(r["n_ensembles"], r["n_chains"]) for r in runs}
-    n_chain = ds.sizes["chain"]
-    if len(shapes) != 1:
+    n_ens = _n_ensembles(dt)
+    if n_ens is None:
         return ds
-    ((n_ens, n_chains),) = shapes
-    if n_chains != n_chain or n_chain % n_ens:
-        return ds
-    walkers, n_draw = n_chain // n_ens, ds.sizes["draw"]
+    walkers, n_draw = ds.sizes["chain"] // n_ens, ds.sizes["draw"]
 
     def regroup(da: xr.DataArray) -> xr.DataArray:
         v = da.transpose("chain", "draw", ...).values
@@ -168,6 +163,23 @@ IDENTIFIABILITY_LEVELS: tuple[tuple[float, str], ...] = (
     (0.9, "identified"),
     (math.inf, "well identified: the data dominate the prior"),
 )
+
+
+def _n_ensembles(dt: xr.DataTree) -> int | None:
+    """How many independent ensembles a fit's chains (walkers, ensemble by ensemble) form.
+
+    None where the runs of the fit kept different numbers of ensembles (a stuck ensemble
+    dropped) or do not say: then the walkers cannot be grouped.
+    """
+    runs = json.loads(dt.attrs.get("runs", "[]"))
+    shapes = {(r["n_ensembles"], r["n_chains"]) for r in runs}
+    if len(shapes) != 1:
+        return None
+    ((n_ens, n_chains),) = shapes
+    n_chain = dt.posterior.sizes["chain"]
+    if n_chains != n_chain or n_chain % n_ens:
+        return None
+    return int(n_ens)
 
 
 def identifiability_table(dt: xr.DataTree, var_names: Sequence[str] | None = None) -> pd.DataFrame:
