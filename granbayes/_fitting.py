@@ -663,12 +663,23 @@ def _evolve(
         values = _batched_log_probs(models, [(p[0], props[p]) for p in pairs])
         for p, f in zip(pairs, values, strict=True):
             k = int(np.argmax(f))
-            width = bounds[p[0]][1] - bounds[p[0]][0]
-            if f[k] > value[p]:
+            better = f[k] > value[p]
+            if better:
                 points[p], value[p] = props[p][k], f[k]
-                scale[p] = np.minimum(scale[p] * 1.5, 0.25 * width)
-            else:
-                scale[p] = scale[p] * 0.6
+            scale[p] = _adapted_step(scale[p], better, bounds[p[0]][1] - bounds[p[0]][0])
+
+
+def _adapted_step(scale: np.ndarray, better, width: np.ndarray) -> np.ndarray:
+    """A (1+lambda) evolution strategy's step after a round (:func:`_evolve`, screening).
+
+    Grown by 1.5 where the round improved the point (to at most a quarter of the prior's
+    ``width``), shrunk by 0.6 where it did not; ``better`` is one flag per point (a row of
+    ``scale``) or a single one.
+    """
+    better = np.asarray(better)
+    if better.ndim:
+        better = better[:, None]
+    return np.where(better, np.minimum(scale * 1.5, 0.25 * width), scale * 0.6)
 
 
 def _value_and_gradient(ask, lo: np.ndarray, hi: np.ndarray):
@@ -1482,8 +1493,7 @@ def _screen_searches(problems: Sequence[tuple], n_rounds: int) -> list[float]:
             better = fp[np.arange(len(x)), j] > f
             x[better] = prop[better, j[better]]
             f[better] = fp[better, j[better]]
-            scale[better] = np.minimum(scale[better] * 1.5, 0.25 * width)
-            scale[~better] *= 0.6
+            scales[i] = _adapted_step(scale, better, width)
     best = [int(np.argmax(f)) for f in fs]
     searches = [
         nelder_mead(x[b], maxfev=60 * model.ndim, xatol=1e-4, fatol=1e-3, adaptive=True)
