@@ -24,6 +24,7 @@ from ..stats import CI_PROB, by_ensemble, eti_probs, run_diagnostics
 from ..stats._loo import _ignore_pareto_k_warning, _pit_tree
 from ..stats._sbc import _sbc_dataset
 from ..stats._summaries import _n_ensembles
+from ._analyses import panel_grid
 from ._style import COLORS, data_label, param_label
 
 
@@ -249,11 +250,8 @@ def plot_trace(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
             at = stacked.isel(_panel=j)
             where = ", ".join(f"{d} = {at[d].item():g}" for d in extra)
             panels.append((name, where, at.values))
-    n_cols = min(4, len(panels))
-    n_rows = math.ceil(len(panels) / n_cols)
-    fig = Figure(figsize=(3.2 * n_cols, 2.2 * n_rows + 0.7), layout="constrained")
-    axes = fig.subplots(n_rows, n_cols, sharex=True, squeeze=False).ravel()
-    for ax, (name, where, values) in zip(axes, panels, strict=False):
+    fig, axes, legend_ax = panel_grid(len(panels), width=3.4, height=2.3)
+    for ax, (name, where, values) in zip(axes, panels, strict=True):
         draws = np.arange(values.shape[1])
         # chains are the walkers, ensemble by ensemble (granbayes._sampler)
         for e, walkers in enumerate(values.reshape(n_ens, -1, values.shape[1])):
@@ -262,13 +260,12 @@ def plot_trace(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
             ax.plot(draws, np.median(walkers, axis=0), color=colour, lw=1.5, label=f"ensemble {e}")
         ax.set_title(where, fontsize=9)
         ax.set_ylabel(param_label(name), fontsize=9)
+        ax.set_xlabel("kept draw", fontsize=9)
         ax.tick_params(labelsize=8)
-    for ax in axes[len(panels) :]:
-        ax.set_visible(False)
-    for ax in axes[max(0, len(panels) - n_cols) : len(panels)]:
-        ax.set_xlabel("kept draw")
-        ax.tick_params(labelbottom=True)  # the lowest panel of its column
-    axes[0].legend(fontsize=7)
+    if legend_ax is not None:
+        legend_ax.legend(*axes[0].get_legend_handles_labels(), fontsize=8, loc="center")
+    else:
+        axes[0].legend(fontsize=7)
     title = "Walkers' traces (thin) and each ensemble's median over its walkers (thick)"
     label = data_label(dt)
     fig.suptitle(f"{label}\n{title}" if label else title, fontsize=10)
