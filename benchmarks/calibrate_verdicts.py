@@ -49,6 +49,7 @@ from granbayes.calibration import (
     OUTCOMES,
     STEP_BUDGET,
     clopper_pearson,
+    compare_studies,
     diagnose_case,
     flip_rates,
     outcome,
@@ -226,13 +227,21 @@ def write_summary(
     config: DiagnoseSettings,
     seed: int,
     n_planned: int | None = None,
+    against: Path | None = None,
 ) -> None:
     """summary.md, summary.json, rates.png from the tidy results.
 
     The rates are those of each case's first diagnosis (sampler replicate 0); the other
-    replicates give the flip rate.
+    replicates give the flip rate. ``against``: the ``results.csv`` of an earlier run of
+    the study (same seed), compared case by case.
     """
     flips, flipped = flip_rates(results)
+    if against is not None:
+        # only empty cells are missing: pandas would read the kind "null" as NaN
+        earlier = pd.read_csv(against, keep_default_na=False, na_values=[""])
+        changes, changed = compare_studies(earlier, results)
+    else:
+        changes = changed = None
     results = primary_rows(results).copy()
     results["added"] = results["added"].fillna("")
     summary = summarize(results)
@@ -281,6 +290,10 @@ def write_summary(
         "flip_rates": flips.to_dict("records"),
         "flipped": flipped.to_dict("records"),
     }
+    if changes is not None:
+        doc["against"] = str(against)
+        doc["changes_against"] = changes.to_dict("records")
+        doc["changed_against"] = changed.to_dict("records")
     (out / "summary.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
     fmt = summary.copy()
     for c in fmt.columns:
@@ -365,6 +378,24 @@ def write_summary(
             if len(flipped)
             else []
         ),
+        *(
+            [
+                f"## Against an earlier run of the study (`{against}`)",
+                "",
+                "The same cases (same seed: the same drawn truths and designs) in both runs, "
+                "each case's first diagnosis. A change is another verdict or other terms "
+                "named (ties are not compared: earlier rows may hold every round's ties "
+                "together). `right_before`, `right_after`: right answers (alone or tied) "
+                "in each run; `change_lo`, `change_hi`: exact 95% interval.",
+                "",
+                markdown_table(changes, ".3g"),
+                "",
+                markdown_table(changed, ".3g") if len(changed) else "No case changed.",
+                "",
+            ]
+            if changes is not None
+            else []
+        ),
         "## Threshold sweep (round 1 rederived from the recorded candidates, no refits)",
         "",
         markdown_table(swept, ".3g"),
@@ -382,6 +413,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument("--null", type=int, default=60, help="null cases (default 60)")
     parser.add_argument("--per-term", type=int, default=10, help="cases per effect (10)")
+    parser.add_argument(
+        "--against",
+        type=Path,
+        help="results.csv of an earlier run of the study: what changed, case by case",
+    )
     parser.add_argument(
         "--sampler-seeds",
         type=int,
@@ -401,7 +437,9 @@ def main(argv: list[str] | None = None) -> int:
         n_cases = sum(1 for t in todo if not t.kwargs)  # the first diagnosis of each case
         return summarize_finished(
             args.out,
-            lambda results: write_summary(args.out, results, config, args.seed, n_cases),
+            lambda results: write_summary(
+                args.out, results, config, args.seed, n_cases, args.against
+            ),
         )
     description = {
         "kind": "granbayes.calibration",
@@ -423,7 +461,7 @@ def main(argv: list[str] | None = None) -> int:
         log=lambda m: print(m, file=sys.stderr),
     )
     ok = result.results
-    write_summary(result.folder, ok, config, args.seed)
+    write_summary(result.folder, ok, config, args.seed, against=args.against)
     print((result.folder / "summary.md").read_text())
     return 0 if result.n_failed == 0 else 1
 

@@ -94,6 +94,7 @@ __all__ = [
     "as_good_as_truth",
     "case_design",
     "clopper_pearson",
+    "compare_studies",
     "flip_rates",
     "fresh_deficit",
     "make_case",
@@ -1276,6 +1277,107 @@ def flip_rates(results: pd.DataFrame, level: float = 0.95) -> tuple[pd.DataFrame
         "flip_hi",
     ]
     return pd.DataFrame(rows, columns=columns), pd.DataFrame(flipped)
+
+
+def compare_studies(
+    earlier: pd.DataFrame, later: pd.DataFrame, level: float = 0.95
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """What changed between two runs of the study on the same cases (another code).
+
+    Each case's first diagnosis (:func:`primary_rows`) in ``later`` is paired with the same
+    case (``kind`` and ``index``: the same seed, hence the same drawn truth and design) in
+    ``earlier``; cases in one run only are left out. Which terms were named is compared,
+    not the claim with its ties: rows made before the claim was recorded hold the
+    indistinguishable terms of every round together.
+
+    Parameters
+    ----------
+    earlier, later : pandas.DataFrame
+        Rows of :func:`diagnose_case` from two runs of the study.
+    level : float, default 0.95
+        Level of the exact (Clopper-Pearson) interval of each change rate.
+
+    Returns
+    -------
+    rates : pandas.DataFrame
+        One row per case kind in both runs, then ``all``: ``cases``, ``verdict_changes``,
+        ``changes`` (the verdict or the terms named), ``right_before``, ``right_after``
+        (:func:`outcome` right, tied or alone), ``change_rate`` = changes / cases and its
+        interval ``change_lo``, ``change_hi``.
+    changed : pandas.DataFrame
+        One row per changed case: per run (suffixes ``_before``, ``_after``) the verdict,
+        the terms named, those reported as indistinguishable, the outcome, the reported
+        gain and its SE, and the baseline's largest misfit |z|.
+    """
+    before = {(r["kind"], int(r["index"])): r for r in primary_rows(earlier).to_dict("records")}
+    counts: dict[str, dict[str, int]] = {}
+    changed = []
+    for row in primary_rows(later).to_dict("records"):
+        old = before.get((row["kind"], int(row["index"])))
+        if old is None:
+            continue
+        named = [r.get("added") if isinstance(r.get("added"), str) else "" for r in (old, row)]
+        verdict_change = old["verdict"] != row["verdict"]
+        change = verdict_change or named[0] != named[1]
+        outcomes = [outcome(r) for r in (old, row)]
+        for key in (row["kind"], "all"):
+            c = counts.setdefault(
+                key,
+                {
+                    "cases": 0,
+                    "verdict_changes": 0,
+                    "changes": 0,
+                    "right_before": 0,
+                    "right_after": 0,
+                },
+            )
+            c["cases"] += 1
+            c["verdict_changes"] += int(verdict_change)
+            c["changes"] += int(change)
+            c["right_before"] += int(outcomes[0] in (RIGHT, RIGHT_TIED))
+            c["right_after"] += int(outcomes[1] in (RIGHT, RIGHT_TIED))
+        if change:
+            entry: dict[str, Any] = {"kind": row["kind"], "index": int(row["index"])}
+            for suffix, r, terms, out in zip(
+                ("before", "after"), (old, row), named, outcomes, strict=True
+            ):
+                tied = r.get("indistinguishable")
+                entry |= {
+                    f"verdict_{suffix}": r["verdict"],
+                    f"added_{suffix}": terms,
+                    f"indistinguishable_{suffix}": tied if isinstance(tied, str) else "",
+                    f"outcome_{suffix}": out,
+                    f"elpd_gain_{suffix}": r.get("elpd_gain", np.nan),
+                    f"elpd_gain_se_{suffix}": r.get("elpd_gain_se", np.nan),
+                    f"baseline_max_abs_z_{suffix}": r.get("baseline_max_abs_z", np.nan),
+                }
+            changed.append(entry)
+    order = {k: i for i, k in enumerate((*CASE_KINDS, "all"))}
+    rows = []
+    for kind in sorted(counts, key=lambda k: order.get(k, len(order))):
+        c = counts[kind]
+        lo, hi = clopper_pearson(c["changes"], c["cases"], level)
+        rows.append(
+            {
+                "kind": kind,
+                **c,
+                "change_rate": c["changes"] / c["cases"],
+                "change_lo": lo,
+                "change_hi": hi,
+            }
+        )
+    columns = [
+        "kind",
+        "cases",
+        "verdict_changes",
+        "changes",
+        "right_before",
+        "right_after",
+        "change_rate",
+        "change_lo",
+        "change_hi",
+    ]
+    return pd.DataFrame(rows, columns=columns), pd.DataFrame(changed)
 
 
 # ----------------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ from granbayes.calibration import (
     as_good_as_truth,
     case_design,
     clopper_pearson,
+    compare_studies,
     diagnose_case,
     effect_size,
     flip_rates,
@@ -406,6 +407,51 @@ def test_flip_rates_pair_each_case_with_its_first_diagnosis() -> None:
     assert (two["claim_0"], two["claim_r"]) == ("{drag}", "{drag|viscous}")
     assert (two["round1_gain_0"], two["round1_gain_r"]) == (9.0, 8.5)
     assert two["round1_best_0"] == "drag" and two["round1_gain_se_r"] == 4.0
+
+
+def test_two_runs_of_the_study_are_compared_case_by_case() -> None:
+    """The same case (kind and index) in an earlier and a later run: a change is another
+    verdict or other terms named; ties and sampler replicates do not enter, cases in one
+    run only are left out, and the right answers are counted in both runs."""
+    earlier = pd.DataFrame(
+        [
+            _pair_row("null", 0, np.nan, "baseline_adequate"),  # made before replicates
+            _pair_row("drag", 0, np.nan, "extended", "drag"),
+            _pair_row("drag", 1, np.nan, "extended", "viscous", ties="drag"),
+            _pair_row("drag", 2, np.nan, "extended", "drag", ties=""),
+            _pair_row("viscous", 0, np.nan, "extended", "viscous"),  # not in the later run
+        ]
+    )
+    later = pd.DataFrame(
+        [
+            _pair_row("null", 0, 0, "baseline_adequate"),
+            _pair_row("null", 0, 1, "extended", "drag"),  # a replicate: not compared
+            _pair_row("drag", 0, 0, "baseline_adequate", gain=3.0),  # verdict change
+            _pair_row("drag", 1, 0, "extended", "drag", "{drag|viscous}", "viscous"),  # terms
+            _pair_row("drag", 2, 0, "extended", "drag", "{drag|viscous}", "viscous"),  # a tie
+            _pair_row("drag", 3, 0, "extended", "drag"),  # not in the earlier run
+        ]
+    )
+    rates, changed = compare_studies(earlier, later)
+    r = rates.set_index("kind")
+    assert list(r.index) == ["null", "drag", "all"]
+    columns = ["cases", "verdict_changes", "changes", "right_before", "right_after"]
+    assert r.loc["null", columns].tolist() == [1, 0, 0, 1, 1]
+    # drag-1 named viscous (drag tied): not right before; named drag (viscous tied) after
+    assert r.loc["drag", columns].tolist() == [3, 1, 2, 2, 2]
+    assert r.loc["all", "change_rate"] == pytest.approx(0.5)
+    assert (r.loc["all", "change_lo"], r.loc["all", "change_hi"]) == pytest.approx(
+        clopper_pearson(2, 4)
+    )
+    c = changed.set_index("index")
+    assert sorted(c.index) == [0, 1]
+    assert (c.loc[0, "verdict_before"], c.loc[0, "verdict_after"]) == (
+        "extended",
+        "baseline_adequate",
+    )
+    assert (c.loc[0, "elpd_gain_before"], c.loc[0, "elpd_gain_after"]) == (20.0, 3.0)
+    assert (c.loc[1, "added_before"], c.loc[1, "indistinguishable_before"]) == ("viscous", "drag")
+    assert (c.loc[1, "added_after"], c.loc[1, "indistinguishable_after"]) == ("drag", "viscous")
 
 
 def test_summaries_count_each_case_once() -> None:
