@@ -4,9 +4,10 @@ Runs :func:`granbayes.calibration.diagnose_case` on SYNTHETIC data sets (robot, 
 design and effect size drawn per case; ``granbayes.calibration`` documents the ranges) as a
 Dask campaign (``granbayes.campaign``): by default 60 null cases (none of 60 naming a term
 bounds the false-discovery rate below 5% at one-sided 95% confidence; 40 cannot), 10 per
-library term and 10 per out-of-library effect, each diagnosed with two sampler seeds (the
-verdict's flip rate under Monte Carlo noise). Each finished case is written at once, so
-the study runs in parts: rerun with ``--resume`` and only the missing cases are computed.
+library term and 10 per out-of-library force of the oracle (``STUDY_KINDS``), each
+diagnosed with two sampler seeds (the verdict's flip rate under Monte Carlo noise). Each
+finished case is written at once, so the study runs in parts: rerun with ``--resume`` and
+only the missing cases are computed.
 
 Writes into OUT (default ``docs/verdicts``):
 
@@ -47,6 +48,7 @@ from granbayes.calibration import (
     LIBRARY_EFFECTS,
     OUT_OF_LIBRARY,
     OUTCOMES,
+    PHYSICAL_EFFECTS,
     STEP_BUDGET,
     clopper_pearson,
     compare_studies,
@@ -62,6 +64,11 @@ from granbayes.report import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 20261123
+#: The kinds of the study by default: null, the library terms and the out-of-library
+#: effects that are forces of the oracle. The two that rescale k per cell
+#: (``pause_stiffening``, ``rate_stiffening``; each cell alone a depth-only law) stay
+#: available with ``--kinds``; the study of 80ecd1b ran them.
+STUDY_KINDS = ("null", *LIBRARY_EFFECTS, *PHYSICAL_EFFECTS)
 #: Threshold grid of the sweep: (min_gain, se_factor, strong_gain, family_alpha). The study
 #: runs diagnose as shipped, screening included, so min_gain starts at the screening bar
 #: (4 nats: a candidate whose best in-sample gain is below it has no ELPD to rederive).
@@ -409,7 +416,7 @@ def write_summary(
 def main(argv: list[str] | None = None) -> int:
     """Run (or resume) the study and write its results."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_campaign_options(parser, ROOT / "docs" / "verdicts", CASE_KINDS)
+    add_campaign_options(parser, ROOT / "docs" / "verdicts", STUDY_KINDS)
     parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument("--null", type=int, default=60, help="null cases (default 60)")
     parser.add_argument("--per-term", type=int, default=10, help="cases per effect (10)")
