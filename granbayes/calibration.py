@@ -373,11 +373,14 @@ def _cell_heights(
     """The oracle's noise-free height [mm] of every cell (phi, frequency, command).
 
     ``with_effect=False``: the same robot, design and ``k(phi)`` without the case's
-    effect (the baseline law's truth; for ``depth_dependent_drag`` without its drag too),
-    for the effect's size in height.
+    effect, for the effect's size in height: the baseline law's truth, except for
+    ``depth_dependent_drag``, whose reference keeps its drawn drag ``c_d`` (a library law)
+    and loses the depth dependence, the part of the effect the library has no term for and
+    the size its power curve varies.
     """
     k0, k1, k2 = truth["k_law"]
-    effect = truth["effect"] if with_effect else {}
+    keep_drag = kind == "depth_dependent_drag"
+    effect = truth["effect"] if with_effect or keep_drag else {}
     strength = truth["out_of_library_strength"] if with_effect else 0.0
     physics = (_PHYSICS[kind](strength),) if with_effect and kind in _PHYSICS else None
     amplitude_mm = truth["amplitude_mm"]
@@ -417,6 +420,8 @@ def effect_size(case: Case) -> dict[str, float]:
         ``sqrt(sum (dh / sigma)^2)`` (twice the log-likelihood ratio of the truth against
         the effect-free law with the same ``k``, in expectation, is its square). Both
         overstate what a fit sees: the baseline law refits ``k`` and absorbs part of it.
+        For ``depth_dependent_drag`` the change is against the same drag without its
+        depth dependence (:func:`_cell_heights`).
     """
     off = _cell_heights(case.kind, case.truth, case.experiment, with_effect=False)
     cells = zip(case.table["phi"], case.table["freq_hz"], case.table["command"], strict=True)

@@ -564,6 +564,18 @@ def test_effect_size_vanishes_without_the_effect_and_grows_with_it() -> None:
     )
 
 
+def test_the_depth_dependent_drags_size_is_its_depth_dependence() -> None:
+    """Its reference is the same drag without the depth dependence: no dependence, no
+    change, though the drag itself changes the heights by centimetres."""
+    flat = make_case("depth_dependent_drag", 2, trials=2, size=0.0)
+    assert flat.truth["effect"]["c_d"] >= 20.0
+    assert effect_size(flat) == {"effect_rms_mm": 0.0, "effect_snr": 0.0}
+    assert (
+        effect_size(make_case("depth_dependent_drag", 2, trials=2, size=50.0))["effect_rms_mm"]
+        > 0.1
+    )
+
+
 def test_power_table_counts_detections_per_size() -> None:
     """Rates per kind and size in ladder order with exact intervals; a tie with the truth
     counts as detected, a wrong term does not."""
