@@ -1388,22 +1388,25 @@ def compare_studies(
 # ----------------------------------------------------------------------------------------
 # where the tool stops seeing: detection probability against effect size
 # ----------------------------------------------------------------------------------------
-#: Effect values of the power curves per kind, weakest first: a geometric ladder from the
-#: study's range (:data:`EFFECT_RANGES`, :data:`OUT_OF_LIBRARY`) down towards the noise
-#: floor (the library term's parameter [SI] or the out-of-library strength). For
-#: ``unloading`` a smaller ratio is the stronger effect (20: absent), for
-#: ``janssen_saturation`` a shorter screening length.
+#: Effect values of the power curves per kind, weakest first (the library term's
+#: parameter [SI] or the out-of-library strength; for ``unloading`` a smaller ratio is the
+#: stronger effect, 20 being absent, for ``janssen_saturation`` a shorter screening
+#: length). Each ladder spans the effect's signal-to-noise ratio in the heights before any
+#: refit (:func:`effect_size`) from about 2-3 at the weakest (medians over cases of
+#: :data:`POWER_DESIGN`; 1.8 for added mass), near the noise floor, to 11-30 at the
+#: strongest (``benchmarks/power_ladders.py``, ``benchmarks/results/power_ladders.md``);
+#: stiffening starts at 4.8, since refitting ``k`` absorbs much of a ``k2 z^2``.
 POWER_SIZES: dict[str, tuple[float, ...]] = {
     "drag": (5.0, 10.0, 20.0, 40.0),
     "added_mass": (0.25, 0.5, 1.0, 2.0),
-    "stiffening": (1.25e4, 2.5e4, 5.0e4, 1.0e5),
+    "stiffening": (6.25e3, 1.25e4, 2.5e4, 5.0e4),
     "viscous": (2.5, 5.0, 10.0, 20.0),
     "compaction": (0.0625, 0.125, 0.25, 0.5),
-    "unloading": (12.0, 8.0, 5.0, 3.0),
-    "depth_dependent_drag": (12.5, 25.0, 50.0, 100.0),
+    "unloading": (16.0, 12.0, 8.0, 5.0),
+    "depth_dependent_drag": (50.0, 100.0, 200.0, 400.0),
     "janssen_saturation": (0.48, 0.24, 0.12, 0.06),
     "pause_relaxation": (0.125, 0.25, 0.5, 1.0),
-    "rate_dependent_strength": (0.025, 0.05, 0.1, 0.2),
+    "rate_dependent_strength": (0.0125, 0.025, 0.05, 0.1),
 }
 #: Designs of the power curves' cases, like a lab's: 2-5 volume fractions, 1-2 actuation
 #: frequencies, 2-5 repeated jumps per cell (inclusive) and a scatter of 1.5-5 mm.
