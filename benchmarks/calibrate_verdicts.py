@@ -192,8 +192,11 @@ COLOURS = dict(
 )
 
 
-def figure(results: pd.DataFrame, summary: pd.DataFrame) -> Figure:
-    """Outcomes per case kind (stacked fractions) with the right-answer rate's 95% interval."""
+def figure(results: pd.DataFrame, summary: pd.DataFrame, stopped: str = "") -> Figure:
+    """Outcomes per case kind (stacked fractions) with the right-answer rate's 95% interval.
+
+    ``stopped``: a line for the title of a study stopped part-way (how many cases).
+    """
     fig = Figure(figsize=(9.0, 4.4), layout="constrained")
     ax = fig.subplots()
     kinds = list(summary["kind"])
@@ -220,7 +223,7 @@ def figure(results: pd.DataFrame, summary: pd.DataFrame) -> Figure:
         "SYNTHETIC data (granbayes.calibration, benchmarks/calibrate_verdicts.py):\n"
         "what diagnose concluded, by hidden truth. Right: null -> baseline_adequate;\n"
         "library term -> extended with that term; outside the library -> misfit_remains\n"
-        "or a law as good as the truth on a fresh replicate",
+        "or a law as good as the truth on a fresh replicate" + (f"\n{stopped}" if stopped else ""),
         fontsize=8,
         loc="left",
     )
@@ -410,7 +413,12 @@ def write_summary(
         "![rates](rates.png)",
     ]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    figure(results, summary).savefig(out / "rates.png", dpi=130)
+    stopped = (
+        f"A STOPPED STUDY: {len(results)} of the {n_planned} planned cases (a pilot)"
+        if n_planned and n_planned > len(results)
+        else ""
+    )
+    figure(results, summary, stopped).savefig(out / "rates.png", dpi=130)
 
 
 def main(argv: list[str] | None = None) -> int:
