@@ -1263,25 +1263,8 @@ def flip_rates(results: pd.DataFrame, level: float = 0.95) -> tuple[pd.DataFrame
                     f"residual_max_abs_z_{suffix}": r.get("residual_max_abs_z", np.nan),
                 }
             flipped.append(entry)
-    order = {k: i for i, k in enumerate((*CASE_KINDS, "all"))}
-    rows = []
-    for kind in sorted(counts, key=lambda k: order.get(k, len(order))):
-        c = counts[kind]
-        lo, hi = clopper_pearson(c["flips"], c["pairs"], level)
-        rows.append(
-            {"kind": kind, **c, "flip_rate": c["flips"] / c["pairs"], "flip_lo": lo, "flip_hi": hi}
-        )
-    columns = [
-        "kind",
-        "pairs",
-        "verdict_flips",
-        "flips",
-        "outcome_flips",
-        "flip_rate",
-        "flip_lo",
-        "flip_hi",
-    ]
-    return pd.DataFrame(rows, columns=columns), pd.DataFrame(flipped)
+    names = ("pairs", "verdict_flips", "flips", "outcome_flips")
+    return _rate_table(counts, names, "flips", "pairs", "flip", level), pd.DataFrame(flipped)
 
 
 def compare_studies(
@@ -1357,32 +1340,32 @@ def compare_studies(
                     f"baseline_max_abs_z_{suffix}": r.get("baseline_max_abs_z", np.nan),
                 }
             changed.append(entry)
+    names = ("cases", "verdict_changes", "changes", "right_before", "right_after")
+    return _rate_table(counts, names, "changes", "cases", "change", level), pd.DataFrame(changed)
+
+
+def _rate_table(
+    counts: Mapping[str, Mapping[str, int]],
+    names: Sequence[str],
+    events: str,
+    total: str,
+    prefix: str,
+    level: float,
+) -> pd.DataFrame:
+    """A table of rates: one row per case kind (:data:`CASE_KINDS` order), then ``all``.
+
+    The counts ``names`` and ``events / total`` as ``<prefix>_rate`` with its exact
+    interval ``<prefix>_lo``, ``<prefix>_hi`` (:func:`clopper_pearson` at ``level``).
+    """
     order = {k: i for i, k in enumerate((*CASE_KINDS, "all"))}
     rows = []
     for kind in sorted(counts, key=lambda k: order.get(k, len(order))):
         c = counts[kind]
-        lo, hi = clopper_pearson(c["changes"], c["cases"], level)
-        rows.append(
-            {
-                "kind": kind,
-                **c,
-                "change_rate": c["changes"] / c["cases"],
-                "change_lo": lo,
-                "change_hi": hi,
-            }
-        )
-    columns = [
-        "kind",
-        "cases",
-        "verdict_changes",
-        "changes",
-        "right_before",
-        "right_after",
-        "change_rate",
-        "change_lo",
-        "change_hi",
-    ]
-    return pd.DataFrame(rows, columns=columns), pd.DataFrame(changed)
+        lo, hi = clopper_pearson(c[events], c[total], level)
+        rate = {f"{prefix}_rate": c[events] / c[total], f"{prefix}_lo": lo, f"{prefix}_hi": hi}
+        rows.append({"kind": kind, **{n: c[n] for n in names}, **rate})
+    columns = ["kind", *names, f"{prefix}_rate", f"{prefix}_lo", f"{prefix}_hi"]
+    return pd.DataFrame(rows, columns=columns)
 
 
 # ----------------------------------------------------------------------------------------
