@@ -68,3 +68,20 @@ def test_trace_draws_every_walker_and_each_ensembles_median(runs, groups):
             np.testing.assert_array_equal(line.get_ydata(), np.median(values, axis=0))
     assert "kept draw" in [ax.get_xlabel() for ax in axes]
     assert fig.get_suptitle().startswith("SYNTHETIC data (tests/test_figures.py)")
+
+
+def test_trace_panels_of_a_parameter_with_a_named_coordinate():
+    """A coordinate that is not a number (here a command) names its panels as it is."""
+    tree = _fit(SAME)
+    post = tree.posterior.to_dataset()
+    k = post["k"].rename(phi="command").assign_coords(command=["single", "stutter"])
+    tree = xr.DataTree.from_dict(
+        {
+            "posterior": post.drop_vars("k").drop_dims("phi").assign(k=k),
+            "observed_data": tree.observed_data.to_dataset(),
+        }
+    )
+    tree.attrs["runs"] = json.dumps(SAME)
+    fig = figures.plot_trace(tree, ["k"])
+    titles = [ax.get_title() for ax in fig.axes if ax.get_visible() and ax.lines]
+    assert titles == ["command = single", "command = stutter"]

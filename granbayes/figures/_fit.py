@@ -248,7 +248,7 @@ def plot_trace(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
         stacked = da.stack(_panel=extra) if extra else da.expand_dims(_panel=[0], axis=-1)
         for j in range(stacked.sizes["_panel"]):
             at = stacked.isel(_panel=j)
-            where = ", ".join(f"{d} = {at[d].item():g}" for d in extra)
+            where = ", ".join(f"{d} = {_coordinate_text(at[d].item())}" for d in extra)
             panels.append((name, where, at.values))
     fig, axes, legend_ax = panel_grid(len(panels), width=3.4, height=2.3)
     for ax, (name, where, values) in zip(axes, panels, strict=True):
@@ -270,6 +270,11 @@ def plot_trace(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
     label = data_label(dt)
     fig.suptitle(f"{label}\n{title}" if label else title, fontsize=10)
     return fig
+
+
+def _coordinate_text(value: object) -> str:
+    """A coordinate value as a panel title shows it (numbers in the shortest form)."""
+    return f"{value:g}" if isinstance(value, (int, float, np.number)) else str(value)
 
 
 def plot_rank(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
