@@ -254,6 +254,7 @@ def write_summary(
         changes = changed = None
     results = primary_rows(results).copy()
     results["added"] = results["added"].fillna("")
+    stopped = bool(n_planned and n_planned > len(results))
     summary = summarize(results)
     swept = sweep(results)
     null = summary[summary["kind"] == "null"]
@@ -317,7 +318,7 @@ def write_summary(
         + (
             f" (**a stopped study: {len(results)} of the {n_planned} planned cases "
             "finished; read the rates as a pilot, with their standard errors**)"
-            if n_planned and n_planned > len(results)
+            if stopped
             else ""
         )
         + ". Rule: gain > "
@@ -413,12 +414,8 @@ def write_summary(
         "![rates](rates.png)",
     ]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    stopped = (
-        f"A STOPPED STUDY: {len(results)} of the {n_planned} planned cases (a pilot)"
-        if n_planned and n_planned > len(results)
-        else ""
-    )
-    figure(results, summary, stopped).savefig(out / "rates.png", dpi=130)
+    note = f"A STOPPED STUDY: {len(results)} of the {n_planned} planned cases (a pilot)"
+    figure(results, summary, note if stopped else "").savefig(out / "rates.png", dpi=130)
 
 
 def main(argv: list[str] | None = None) -> int:
