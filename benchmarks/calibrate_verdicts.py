@@ -54,6 +54,7 @@ from granbayes.calibration import (
     compare_studies,
     diagnose_case,
     flip_rates,
+    named_terms,
     outcome,
     primary_rows,
     rederive_verdicts,
@@ -256,6 +257,7 @@ def write_summary(
     results["added"] = results["added"].fillna("")
     stopped = bool(n_planned and n_planned > len(results))
     summary = summarize(results)
+    named, tied = named_terms(results)
     swept = sweep(results)
     null = summary[summary["kind"] == "null"]
     null_rows = results[results["kind"] == "null"]
@@ -298,6 +300,8 @@ def write_summary(
         "per_kind": summary.to_dict("records"),
         "sweep": swept.to_dict("records"),
         "median_time_per_case_s": float(results["wall_time_s"].median()),
+        "named_terms": named.to_dict("records"),
+        "tied_terms": tied.to_dict("records"),
         "flip_rates": flips.to_dict("records"),
         "flipped": flipped.to_dict("records"),
     }
@@ -337,7 +341,8 @@ def write_summary(
         "indistinguishable from an added one (`diagnosis.json` "
         "`selected.indistinguishable`). `wrong_term`: a term named that is not the truth "
         "(for null: a false discovery). `false_claim`: a wrong term named without the truth "
-        "reported as indistinguishable from it. `over_budget`: stopped after "
+        "reported as indistinguishable from it; `false_claim_hi95`: its one-sided 95% "
+        "upper bound, each kind on its own. `over_budget`: stopped after "
         f"{STEP_BUDGET:,} sampler steps without a verdict (counted as not right).",
         "",
         f"False-discovery rate (a term named on null data): {doc['false_discovery_rate']:.3f}, "
@@ -352,6 +357,21 @@ def write_summary(
         f"{lib_false_upper:.3f}."
         if len(lib_rows)
         else "",
+        "",
+        "## Which terms were named, by truth",
+        "",
+        "Per kind of truth, the cases whose diagnosis added each library term (in any "
+        "round), then those that reported it as not distinguished from an added term: "
+        "the confusions and ties behind `wrong_term`, `ambiguous` and each kind's own "
+        "`false_claim` bound (`false_claim_hi95`, one-sided 95%) above.",
+        "",
+        "Named (added to the law):",
+        "",
+        markdown_table(named),
+        "",
+        "Reported as not distinguished from an added term:",
+        "",
+        markdown_table(tied),
         "",
         "## Honest gain: the reported gain against fresh data",
         "",

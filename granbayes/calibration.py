@@ -98,6 +98,7 @@ __all__ = [
     "flip_rates",
     "fresh_deficit",
     "make_case",
+    "named_terms",
     "outcome",
     "power_case",
     "power_table",
@@ -1101,7 +1102,9 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
     the cause that is not the truth: for ``null`` any named term, for an out-of-library
     effect ``extended`` although misfit was left, which cannot happen by construction and
     is a check); ``false_claim`` (a wrong term named *and* the truth not reported as
-    indistinguishable from it: the claim a user would be misled by); ``right_alone``
+    indistinguishable from it: the claim a user would be misled by) and its one-sided
+    95% upper bound ``false_claim_hi95`` (the bound of each kind on its own, not pooled);
+    ``right_alone``
     (right, with no other term reported as indistinguishable); ``ambiguous`` (any term
     reported as indistinguishable from an added one); ``over_budget`` (stopped at
     :data:`STEP_BUDGET`, counted as not right); ``all_converged``; the median sampler
@@ -1148,6 +1151,8 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
                 "ambiguous": float(tied.mean()),
                 "wrong_term": float(wrong_term.mean()),
                 "false_claim": float(false_claim.mean()),
+                # one-sided 95% upper bound = the upper end of the two-sided 90% interval
+                "false_claim_hi95": clopper_pearson(int(false_claim.sum()), n, 0.90)[1],
                 "over_budget": float((g["verdict"] == "over_budget").mean()),
                 "all_converged": float(g["all_converged"].mean()),
                 "median_steps": float(g["sampler_steps"].median())
@@ -1159,6 +1164,42 @@ def summarize(results: pd.DataFrame) -> pd.DataFrame:
     order = {k: i for i, k in enumerate(CASE_KINDS)}
     out = pd.DataFrame(rows)
     return out.sort_values("kind", key=lambda k: k.map(order), kind="stable").reset_index(drop=True)
+
+
+def named_terms(results: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Which library terms the diagnoses named, and which they reported as tied, by truth.
+
+    Parameters
+    ----------
+    results : pandas.DataFrame
+        Rows of :func:`diagnose_case` (each case's first diagnosis counts).
+
+    Returns
+    -------
+    named : pandas.DataFrame
+        One row per case kind (``kind``, ``n``), one column per library term: the number of
+        cases whose diagnosis added it (in any round).
+    tied : pandas.DataFrame
+        The same, counting the cases that reported it as not distinguished from an added
+        term (``diagnosis.json``'s ``selected.indistinguishable``).
+    """
+    results = primary_rows(results)
+    tables = []
+    for column in ("added", "indistinguishable"):
+        terms = results.get(column, pd.Series("", index=results.index)).fillna("")
+        sets = terms.map(lambda text: set(str(text).split("+")) - {""})
+        rows = []
+        for kind, g in sets.groupby(results["kind"], sort=False):
+            counts = {t: sum(t in named for named in g) for t in LIBRARY_EFFECTS}
+            rows.append({"kind": kind, "n": len(g), **counts})
+        order = {k: i for i, k in enumerate(CASE_KINDS)}
+        table = pd.DataFrame(rows, columns=["kind", "n", *LIBRARY_EFFECTS])
+        tables.append(
+            table.sort_values("kind", key=lambda k: k.map(order), kind="stable").reset_index(
+                drop=True
+            )
+        )
+    return tables[0], tables[1]
 
 
 def _claim_of(row: Mapping[str, Any]) -> str:

@@ -31,6 +31,7 @@ from granbayes.calibration import (
     flip_rates,
     fresh_deficit,
     make_case,
+    named_terms,
     outcome,
     primary_rows,
     rederive_verdicts,
@@ -452,6 +453,30 @@ def test_two_runs_of_the_study_are_compared_case_by_case() -> None:
     assert (c.loc[0, "elpd_gain_before"], c.loc[0, "elpd_gain_after"]) == (20.0, 3.0)
     assert (c.loc[1, "added_before"], c.loc[1, "indistinguishable_before"]) == ("viscous", "drag")
     assert (c.loc[1, "added_after"], c.loc[1, "indistinguishable_after"]) == ("drag", "viscous")
+
+
+def test_terms_named_and_tied_are_counted_per_truth() -> None:
+    """Each case's first diagnosis counts the terms it added (in any round) and those it
+    reported as tied; each kind's false-claim bound is its own (exact, one-sided 95%)."""
+    rows = [
+        _pair_row("drag", 0, 0, "extended", "drag", ties="viscous"),
+        _pair_row("drag", 0, 1, "extended", "viscous"),  # a replicate: not counted
+        _pair_row("drag", 1, 0, "extended", "viscous"),
+        _pair_row("drag", 2, 0, "extended", "stiffening+drag", ties="unloading+viscous"),
+        _pair_row("null", 0, 0, "baseline_adequate"),
+    ]
+    named, tied = named_terms(pd.DataFrame(rows))
+    n = named.set_index("kind")
+    t = tied.set_index("kind")
+    assert list(n.index) == ["null", "drag"] and n.loc["drag", "n"] == 3
+    assert n.loc["drag", ["drag", "viscous", "stiffening", "unloading"]].tolist() == [2, 1, 1, 0]
+    assert t.loc["drag", ["drag", "viscous", "unloading"]].tolist() == [0, 2, 1]
+    assert n.loc["null"].drop("n").sum() == 0
+    s = summarize(pd.DataFrame(rows)).set_index("kind")
+    # drag-1 named viscous alone; drag-2 named stiffening beside drag, nothing tied to it
+    assert s.loc["drag", "false_claim"] == pytest.approx(2 / 3)
+    assert s.loc["drag", "false_claim_hi95"] == pytest.approx(clopper_pearson(2, 3, 0.90)[1])
+    assert s.loc["null", "false_claim_hi95"] == pytest.approx(1 - 0.05 ** (1 / 1))
 
 
 def test_summaries_count_each_case_once() -> None:
