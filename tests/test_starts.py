@@ -13,6 +13,7 @@ import pytest
 from granbayes import default_priors, load_experiment, load_measurements
 from granbayes._fitting import (
     FitSettings,
+    _adapted_step,
     _climbs,
     _find_starts_many,
     _hessian,
@@ -234,3 +235,14 @@ def test_intrusion_curves_add_a_climb_from_their_own_mode(monkeypatch: pytest.Mo
     plain_centre, plain_ends, _ = runs["plain"]
     np.testing.assert_allclose(plain_centre, _TwoModes.centres[0], atol=0.15)
     assert plain_ends == [ends[0]]
+
+
+def test_the_evolution_strategies_step_grows_where_a_round_improved_and_shrinks_elsewhere():
+    """x1.5 after a success, capped at a quarter of the prior's width; x0.6 after a failure;
+    one flag per row of steps (screening's points) or one for all (a climb)."""
+    width = np.array([1.0, 8.0])
+    steps = np.array([[0.1, 1.0], [0.2, 1.9], [0.3, 0.5]])
+    out = _adapted_step(steps, np.array([True, True, False]), width)
+    np.testing.assert_allclose(out, [[0.15, 1.5], [0.25, 2.0], [0.18, 0.3]])
+    np.testing.assert_allclose(_adapted_step(steps[0], True, width), [0.15, 1.5])
+    np.testing.assert_allclose(_adapted_step(steps[0], False, width), [0.06, 0.6])
