@@ -4,12 +4,21 @@ of a study stopped part-way (``calibrate_verdicts.py``, ``power_curves.py``)."""
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Sequence
+import sys
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
-from granbayes.campaign import CampaignError, finished_tasks
+from granbayes.campaign import (
+    CampaignError,
+    CampaignResult,
+    ClusterSettings,
+    Task,
+    finished_tasks,
+    run_campaign,
+)
 
 
 def add_campaign_options(parser: argparse.ArgumentParser, out: Path, kinds: Sequence[str]) -> None:
@@ -24,6 +33,21 @@ def add_campaign_options(parser: argparse.ArgumentParser, out: Path, kinds: Sequ
         "--summarize-only",
         action="store_true",
         help="write the summary of the cases finished so far (a stopped study) and exit",
+    )
+
+
+def run_study(
+    tasks: Sequence[Task], args: argparse.Namespace, description: Mapping[str, Any]
+) -> CampaignResult:
+    """Run (or, with ``--resume``, continue) a study's campaign as its options say
+    (:func:`add_campaign_options`), its log on stderr."""
+    return run_campaign(
+        tasks,
+        args.out,
+        description=description,
+        cluster=ClusterSettings(scheduler_address=args.scheduler, n_workers=args.workers),
+        resume=args.resume,
+        log=lambda m: print(m, file=sys.stderr),
     )
 
 

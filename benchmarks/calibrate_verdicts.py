@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import matplotlib
@@ -36,7 +35,12 @@ import matplotlib
 matplotlib.use("Agg")
 import numpy as np
 import pandas as pd
-from _studies import add_campaign_options, chosen_kinds, summarize_finished  # this folder
+from _studies import (  # this folder
+    add_campaign_options,
+    chosen_kinds,
+    run_study,
+    summarize_finished,
+)
 from matplotlib.figure import Figure
 
 from granbayes import __version__
@@ -60,7 +64,7 @@ from granbayes.calibration import (
     rederive_verdicts,
     summarize,
 )
-from granbayes.campaign import ClusterSettings, Task, run_campaign, spawn_seeds
+from granbayes.campaign import Task, spawn_seeds
 from granbayes.report import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -484,14 +488,7 @@ def main(argv: list[str] | None = None) -> int:
         "out_of_library": list(OUT_OF_LIBRARY),
         "design": DESIGN_RANGES,
     }
-    result = run_campaign(
-        todo,
-        args.out,
-        description=description,
-        cluster=ClusterSettings(scheduler_address=args.scheduler, n_workers=args.workers),
-        resume=args.resume,
-        log=lambda m: print(m, file=sys.stderr),
-    )
+    result = run_study(todo, args, description)
     ok = result.results
     write_summary(result.folder, ok, config, args.seed, against=args.against)
     print((result.folder / "summary.md").read_text())

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import matplotlib
@@ -36,7 +35,12 @@ import matplotlib
 matplotlib.use("Agg")
 import numpy as np
 import pandas as pd
-from _studies import add_campaign_options, chosen_kinds, summarize_finished  # this folder
+from _studies import (  # this folder
+    add_campaign_options,
+    chosen_kinds,
+    run_study,
+    summarize_finished,
+)
 from matplotlib.figure import Figure
 
 from granbayes import __version__
@@ -48,7 +52,7 @@ from granbayes.calibration import (
     power_case,
     power_table,
 )
-from granbayes.campaign import ClusterSettings, Task, run_campaign, spawn_seeds
+from granbayes.campaign import Task, spawn_seeds
 from granbayes.report import markdown_table
 
 HERE = Path(__file__).resolve().parent
@@ -179,14 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         "sizes": {k: POWER_SIZES[k] for k in kinds},
         "design": POWER_DESIGN,
     }
-    result = run_campaign(
-        todo,
-        args.out,
-        description=description,
-        cluster=ClusterSettings(scheduler_address=args.scheduler, n_workers=args.workers),
-        resume=args.resume,
-        log=lambda m: print(m, file=sys.stderr),
-    )
+    result = run_study(todo, args, description)
     write_summary(result.folder, result.results, args.seed, len(todo))
     print((result.folder / "summary.md").read_text())
     return 0 if result.n_failed == 0 else 1
