@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _studies import chosen_kinds  # this folder
 
 from granbayes import __version__
 from granbayes.calibration import POWER_DESIGN, POWER_SIZES, effect_size, make_case
@@ -36,10 +37,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--kinds", default=",".join(POWER_SIZES))
     parser.add_argument("--out", type=Path, default=HERE / "results" / "power_ladders")
     args = parser.parse_args(argv)
-    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
-    unknown = sorted(set(kinds) - set(POWER_SIZES))
-    if unknown:
-        print(f"error: --kinds: unknown {unknown}; expected {', '.join(POWER_SIZES)}")
+    kinds = chosen_kinds(args.kinds, list(POWER_SIZES))
+    if kinds is None:
         return 2
     rows = []
     t0 = time.perf_counter()
