@@ -816,6 +816,13 @@ def _add_diagnose_arguments(parser: argparse.ArgumentParser) -> None:
         help="fit every candidate in full (default: candidates whose largest log-likelihood "
         "gain cannot win are screened out without a full posterior)",
     )
+    parser.add_argument(
+        "--lack-of-fit-alpha",
+        default="0.05",
+        metavar="ALPHA",
+        help="level at which the omnibus lack-of-fit test (every height cell together) shows "
+        "misfit, as a misfit cell does; 'none': the test is reported only (default 0.05)",
+    )
 
 
 def run_diagnose(args: argparse.Namespace) -> int:
@@ -837,12 +844,23 @@ def run_diagnose(args: argparse.Namespace) -> int:
         return names
 
     _check_inference_arguments(args)
+    alpha = None
+    if args.lack_of_fit_alpha.strip().lower() != "none":
+        try:
+            alpha = float(args.lack_of_fit_alpha)
+        except ValueError:
+            alpha = math.nan
+        if not 0.0 < alpha < 1.0:
+            raise UsageError(
+                f"--lack-of-fit-alpha {args.lack_of_fit_alpha}: a level in (0, 1), or 'none'"
+            )
     config = DiagnoseSettings(
         baseline=terms(args.baseline, "--baseline"),
         candidates=None if args.candidates is None else terms(args.candidates, "--candidates"),
         screen=not args.no_screen,
         n_threads=args.threads,
         calibration=args.calibration,
+        lack_of_fit_alpha=alpha,
     )
     config = dc.replace(
         config,
@@ -882,13 +900,22 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
 
 def _add_design_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("data", metavar="DIR", type=Path, help="the diagnosed experiment folder")
     parser.add_argument(
+        "data", metavar="DIR", type=Path, help="the diagnosed (or fitted) experiment folder"
+    )
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument(
         "--diagnosis",
         metavar="OUT",
         type=Path,
-        required=True,
-        help="output folder of granbayes diagnose on DIR (diagnosis.json, laws/)",
+        help="output folder of granbayes diagnose on DIR (diagnosis.json, laws/): its tie, "
+        "or without one the unidentified parameters of its selected law",
+    )
+    source.add_argument(
+        "--fit",
+        metavar="FIT",
+        type=Path,
+        help="a fit of DIR (posterior.nc or its folder): design for its parameters",
     )
     parser.add_argument(
         "--out",
@@ -909,7 +936,29 @@ def _add_design_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-jumps",
         type=int,
         default=60,
-        help="budget: jumps added until the tie is settled in expectation (default 60)",
+        help="budget: jumps added until the tie is settled (or the parameters reach their "
+        "goal) in expectation (default 60)",
+    )
+    params = parser.add_argument_group(
+        "parameters (--fit, or --diagnosis without a tie or with --parameter)"
+    )
+    params.add_argument(
+        "--parameter",
+        metavar="NAME[,NAME]",
+        help="force parameters to narrow at every volume fraction (default: those whose "
+        "posterior-to-prior contraction is below 0.5)",
+    )
+    goal = params.add_mutually_exclusive_group()
+    goal.add_argument(
+        "--goal-contraction",
+        type=float,
+        default=0.9,
+        help="contraction each parameter should reach (default 0.9: well identified)",
+    )
+    goal.add_argument(
+        "--sd-ratio",
+        type=float,
+        help="instead: the share of its present posterior SD each parameter should reach",
     )
     cands = parser.add_argument_group(
         "settings a next jump may have (comma-separated; default: within the measured ones)"
@@ -942,19 +991,22 @@ def _add_design_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _run_design(args: argparse.Namespace) -> int:
     from ._fitting import data_hash
-    from .design import candidate_settings, design_from_diagnosis
+    from .design import candidate_settings, design_from_diagnosis, ties_of
 
     if args.max_jumps < 1:
         raise UsageError(f"--max-jumps {args.max_jumps}: must be >= 1")
     if args.draws < 10:
         raise UsageError(f"--draws {args.draws}: must be >= 10")
-    if not (args.diagnosis / "diagnosis.json").is_file():
+    if args.diagnosis is not None and not (args.diagnosis / "diagnosis.json").is_file():
         raise UsageError(f"--diagnosis {args.diagnosis}: no diagnosis.json there")
+    if not 0.0 < args.goal_contraction < 1.0:
+        raise UsageError(f"--goal-contraction {args.goal_contraction}: must be in (0, 1)")
+    if args.sd_ratio is not None and not 0.0 < args.sd_ratio < 1.0:
+        raise UsageError(f"--sd-ratio {args.sd_ratio}: must be in (0, 1)")
     if args.out.exists() and not args.out.is_dir():
         raise UsageError(f"--out {args.out}: exists and is not a folder")
     experiment = load_experiment(args.data)
     data = _load_measurements(args, experiment)
-    record = json.loads((args.diagnosis / "diagnosis.json").read_text())
     commands = None
     if args.command:
         commands = [_check_command(c.strip()) for c in args.command.split(",") if c.strip()]
@@ -973,26 +1025,36 @@ def _run_design(args: argparse.Namespace) -> int:
         freqs_hz=settings.get("freq_hz"),
         delays_ms=settings.get("delay_ms"),
     )
-    try:
-        tie, design = design_from_diagnosis(
-            args.diagnosis,
-            tie=args.tie,
-            candidates=candidates,
-            max_jumps=args.max_jumps,
-            n_draws=args.draws,
-            rng=args.seed,
-            data_sha256=data_hash(experiment, data),
-        )
-    except (ValueError, FileNotFoundError) as exc:
-        raise UsageError(str(exc)) from None
-    lines = _design_lines(tie, design, record)
+    sha = data_hash(experiment, data)
+    record = None
+    if args.diagnosis is not None:
+        record = json.loads((args.diagnosis / "diagnosis.json").read_text())
+    if record is not None and not args.parameter and ties_of(record):
+        try:
+            tie, design = design_from_diagnosis(
+                args.diagnosis,
+                tie=args.tie,
+                candidates=candidates,
+                max_jumps=args.max_jumps,
+                n_draws=args.draws,
+                rng=args.seed,
+                data_sha256=sha,
+            )
+        except (ValueError, FileNotFoundError) as exc:
+            raise UsageError(str(exc)) from None
+        lines = _design_lines(tie, design, record)
+        extra = {
+            "tie": {k: (list(v) if k == "laws" else v) for k, v in tie.items()},
+            "diagnosis": str(args.diagnosis),
+        }
+    else:
+        design, lines, extra = _parameter_design(args, candidates, sha)
     with staged_folder(args.out, resume=False) as work:
         (work / "design.json").write_text(
             json.dumps(
                 {
                     **design.to_json(),
-                    "tie": {k: (list(v) if k == "laws" else v) for k, v in tie.items()},
-                    "diagnosis": str(args.diagnosis),
+                    **extra,
                     "data_source": str(args.data),
                     "seed": args.seed,
                     "granbayes_version": __version__,
@@ -1007,6 +1069,98 @@ def _run_design(args: argparse.Namespace) -> int:
     if not args.quiet:
         print("\n".join(lines))
     return EXIT_OK
+
+
+def _parameter_design(args: argparse.Namespace, candidates: pd.DataFrame, sha: str):
+    """``granbayes design`` for parameters: the design, its words and its provenance."""
+    from ._saved import load_fit
+    from .design import design_parameters
+
+    where = args.fit if args.fit is not None else args.diagnosis / "posterior_selected.nc"
+    if args.fit is None and not where.is_file():
+        raise UsageError(
+            f"--diagnosis {args.diagnosis}: no tie to settle, and no posterior of the selected "
+            "law (posterior_selected.nc) whose parameters could be designed for"
+        )
+    fit = load_fit(where)  # an InputError names the file
+    fitted = fit.datatree.attrs.get("data_sha256")
+    if fitted != sha:
+        raise UsageError(
+            f"{where} is a fit of other data (sha256 {str(fitted)[:12]}... against "
+            f"{sha[:12]}...): pass the fitted folder, with the same kinds of measurement"
+        )
+    names = None
+    if args.parameter:
+        names = [n.strip() for n in args.parameter.split(",") if n.strip()]
+    try:
+        design = design_parameters(
+            fit,
+            parameters=names,
+            candidates=candidates,
+            goal=args.goal_contraction,
+            sd_ratio=args.sd_ratio,
+            max_jumps=args.max_jumps,
+            n_draws=args.draws,
+            rng=args.seed,
+        )
+    except ValueError as exc:
+        no_tie = " (the diagnosis has no tie)" if args.diagnosis is not None else ""
+        raise UsageError(f"{where}{no_tie}: {exc}") from None
+    source = {"fit": str(where)} if args.fit is not None else {"diagnosis": str(args.diagnosis)}
+    return design, _parameter_design_lines(design, str(args.data)), source
+
+
+def _parameter_design_lines(design, data_source: str) -> list[str]:
+    """A parameter design in words (``design.md``)."""
+    from .design import SETTINGS
+    from .report import markdown_table
+
+    goal = (
+        f"a posterior-to-prior contraction of {design.goal:g}"
+        if design.sd_ratio is None
+        else f"a posterior SD {design.sd_ratio:g} times the present one"
+    )
+    targets = design.targets[
+        [
+            "parameter",
+            "phi",
+            "unit",
+            "scale",
+            "median",
+            "posterior_sd",
+            "contraction",
+            "posterior_sd_expected",
+            "contraction_expected",
+            "information_nats",
+            "reached",
+        ]
+    ]
+    lines = [
+        f"# The jumps that would identify the parameters of {design.law}",
+        "",
+        f"Fit of {data_source}; the goal: {goal} for each parameter below.",
+        "",
+        "## Plan" + ("" if design.reached else " (budget spent: the goal not reached)"),
+        "",
+        markdown_table(design.plan, missing="-"),
+        "",
+        f"{design.n_jumps} jumps, {design.information_nats:.2f} nats of expected information "
+        "about the parameters jointly. Each parameter now and after them in expectation "
+        "(the SD in its scale: log of the value for log-scale priors; a linear-Gaussian "
+        "approximation on the posterior draws: an estimate, not a promise):",
+        "",
+        markdown_table(targets.round(4)),
+        "",
+        "The best settings by the information one jump gives (`information_nats`; all in "
+        "`candidates.csv`):",
+        "",
+        markdown_table(
+            design.candidates[[*SETTINGS, "mean_mm", "sd_mm", "information_nats"]].head(8).round(3),
+            missing="-",
+        ),
+    ]
+    lines += ["", *[f"- note: {n}" for n in design.notes]] if design.notes else []
+    return lines
 
 
 def _design_lines(tie: dict, design, record: dict) -> list[str]:
@@ -1420,13 +1574,17 @@ SUBCOMMANDS: list[Subcommand] = [
     ),
     Subcommand(
         "design",
-        "the next jumps that would separate laws a diagnosis could not tell apart",
+        "the next jumps that would separate tied laws, or identify a parameter",
         _add_design_arguments,
         _run_design,
         description="For a tie of a diagnosis (laws whose paired ELPD difference is short of "
         "the rule's margin), propose the jumps (command, phi, frequency, delay, trials) that "
         "are expected to separate them, by the Kullback-Leibler separation of the two laws' "
         "posterior predictive distributions, with the ELPD difference expected after them. "
+        "For a fit (--fit), or a diagnosis without a tie, or with --parameter: the jumps "
+        "expected to narrow the parameters the data leave to their priors (contraction below "
+        "0.5, or those named) to a goal, by their expected information (linear-Gaussian "
+        "approximation on the posterior draws), with the posterior SD expected after them. "
         "Writes DESIGN/design.json, plan.csv, candidates.csv and design.md.",
     ),
     Subcommand(

@@ -56,7 +56,8 @@ from ._deprecated import renamed_keyword
 from ._experiment import Experiment, Robot
 from ._sampler import ProgressInfo
 from .commands import COMMAND_NAMES, COMMANDS, CommandSettings
-from .design import candidate_settings, design_jumps
+from .design import candidate_settings, design_jumps, design_parameters
+from .forces import TERMS, terms_of
 from .testing import (
     DepthDependentDrag,
     Effect,
@@ -87,6 +88,7 @@ __all__ = [
     "diagnose_case",
     "diagnose_folder",
     "diagnose_miscalibrated",
+    "design_parameter_case",
     "design_tie_case",
     "detection_sizes",
     "effect_size",
@@ -96,6 +98,7 @@ __all__ = [
     "clopper_pearson",
     "compare_studies",
     "flip_rates",
+    "lack_of_fit_case",
     "fresh_deficit",
     "make_case",
     "named_terms",
@@ -582,6 +585,80 @@ def diagnose_case(
     )
 
 
+def lack_of_fit_case(
+    kind: str,
+    index: int,
+    added: Sequence[str],
+    settings: DiagnoseSettings | None = None,
+    *,
+    seed: int,
+) -> list[dict[str, Any]]:
+    """Campaign task: a study case's selected law refitted, and its omnibus lack of fit.
+
+    The case of :func:`diagnose_case` with the same task ``seed`` (the same data), fitted
+    with the baseline plus ``added`` (the terms its diagnosis added) with the
+    diagnosis.s sampler settings; :func:`granbayes.stats.lack_of_fit` of the fit
+    and its largest cell |z| (:func:`granbayes.stats.residual_table`). Whether the
+    omnibus test would have flagged the law a diagnosis selected, read against the study's
+    outcome (``benchmarks/lack_of_fit.py``).
+
+    Parameters
+    ----------
+    kind : str
+        Case kind (:data:`CASE_KINDS`).
+    index : int
+        Replicate number within its kind (recorded).
+    added : sequence of str
+        Terms the diagnosis added to the baseline (empty: the baseline law).
+    settings : DiagnoseSettings, optional
+        The rule and sampler settings of the study.
+    seed : int
+        The study's task seed of the case.
+
+    Returns
+    -------
+    list of dict
+        One row: the law, the omnibus statistic, its degrees of freedom and p-value, the
+        largest cell |z|, convergence and wall time [s].
+    """
+    from . import stats as gstats
+    from ._fitting import FitSettings, fit
+
+    cfg = settings or DiagnoseSettings()
+    children = np.random.SeedSequence(seed).spawn(2)
+    case_seed, fit_seed = (int(c.generate_state(1)[0]) for c in children)
+    case = make_case(kind, case_seed)
+    t0 = time.perf_counter()
+    result = fit(
+        case.experiment,
+        case.table,
+        FitSettings(
+            terms=terms_of((*cfg.baseline, *added)),
+            sampler=cfg.sampler,
+            n_threads=1,
+            n_prior_draws=0,
+            calibration=cfg.calibration,
+        ),
+        seed=fit_seed,
+    )
+    test = gstats.lack_of_fit(result.datatree)
+    cells = gstats.residual_table(result.datatree)
+    return [
+        {
+            "kind": kind,
+            "index": int(index),
+            "law": "+".join(terms_of((*cfg.baseline, *added))),
+            "lof_statistic": test["statistic"],
+            "lof_dof_lack": test["dof_lack"],
+            "lof_dof_pure": test["dof_pure"],
+            "lof_p_value": test["p_value"],
+            "max_abs_z": float(cells["z"].abs().max()),
+            "converged": bool(result.converged),
+            "wall_s": time.perf_counter() - t0,
+        }
+    ]
+
+
 def _diagnosed(
     case: Case,
     index: int,
@@ -670,6 +747,9 @@ def _diagnosed(
             "residual_max_abs_z": float(max((abs(c.z_after) for c in sel.per_cell), default=0.0)),
             "z_threshold": rec.rule.z_threshold,
             "family_alpha": rec.rule.family_alpha,
+            "lof_p_baseline": rec.lack_of_fit.get("baseline", {}).get("p_value", np.nan),
+            "lof_p_selected": rec.lack_of_fit.get("selected", {}).get("p_value", np.nan),
+            "lack_of_fit_alpha": rec.rule.lack_of_fit_alpha,
             "all_converged": rec.all_converged,
             "n_fits": len(rec.fits),
             "n_reruns": int(sum(f.reruns for f in rec.fits)),
@@ -1680,6 +1760,155 @@ def extra_jumps(case: Case, plan: pd.DataFrame, rng: np.random.Generator) -> pd.
     out = pd.DataFrame(rows)
     out["source"] = case.table["source"].iloc[0] + " extra jumps"
     return out
+
+
+def design_parameter_case(
+    kind: str,
+    index: int,
+    settings: DiagnoseSettings | None = None,
+    *,
+    seed: int,
+    sd_ratio: float = 0.5,
+    max_jumps: int = 60,
+    n_threads: int | None = None,
+) -> list[dict[str, Any]]:
+    """Campaign task: a parameter narrowed by designed jumps, and by as many random ones.
+
+    A case of ``kind`` (a library term, the truth) is fitted with the baseline plus the
+    true term, as ``diagnose`` fits a law. :func:`granbayes.design.design_parameters`
+    proposes up to ``max_jumps`` new jumps (every command, the case's volume fractions,
+    the study's frequencies :data:`DESIGN_RANGES`) expected to shrink the posterior SD of
+    the term's parameter at every volume fraction to ``sd_ratio`` of its present value;
+    the same number of jumps at settings drawn uniformly from the same candidates is the
+    control. Both sets are simulated from the truth by the oracle and the law refitted on
+    the data plus each set.
+
+    Parameters
+    ----------
+    kind : str
+        A library term (:data:`LIBRARY_EFFECTS`).
+    index : int
+        Replicate number within its kind (recorded).
+    settings : DiagnoseSettings, optional
+        Rule and sampler settings (default ``DiagnoseSettings()``).
+    seed : int
+        The task's seed (the case, the fits, the design and the control are spawned
+        from it).
+    sd_ratio : float
+        The design's goal: posterior SD after / before, per target.
+    max_jumps : int
+        The design's budget of new jumps.
+    n_threads : int, optional
+        numba threads of the fits.
+
+    Returns
+    -------
+    list of dict
+        One row per arm (``before``, ``designed``, ``random``) and volume fraction: the
+        parameter's posterior SD (in the scale of
+        :func:`granbayes.design.parameter_contraction`) and contraction, the SD the design
+        expected, whether the true value lies in the 90% equal-tailed interval, the new
+        jumps, convergence and wall time [s].
+    """
+    from . import stats as gstats
+    from ._fitting import FitSettings, fit
+    from .design import parameter_contraction
+
+    if kind not in LIBRARY_EFFECTS:
+        raise ValueError(f"kind {kind!r}: a library term is needed as the truth")
+    cfg = settings or DiagnoseSettings()
+    case_seed, fit_seed, design_seed, noise_seed, random_seed = (
+        int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(5)
+    )
+    case = make_case(kind, case_seed)
+    terms = terms_of((*cfg.baseline, kind))
+    (parameter,) = (p.name for p in TERMS[kind].parameters)
+
+    def fit_law(table: pd.DataFrame):
+        return fit(
+            case.experiment,
+            table,
+            FitSettings(
+                terms=terms,
+                sampler=cfg.sampler,
+                n_threads=n_threads,
+                n_prior_draws=0,
+                calibration=cfg.calibration,
+            ),
+            seed=fit_seed,
+        )
+
+    common = {
+        "kind": kind,
+        "index": int(index),
+        "parameter": parameter,
+        "sigma_mm": case.truth["sigma_mm"],
+        "freqs_hz": "/".join(f"{f:g}" for f in case.truth["freqs_hz"]),
+        "trials": case.truth["trials"],
+        "n_jumps": len(case.table),
+        "sd_ratio_goal": float(sd_ratio),
+    }
+    truth = float(case.truth["effect"][parameter])
+
+    def rows_of(arm: str, result, n_new: int, t0: float, expected=None, plan=None) -> list:
+        table = parameter_contraction(result, [parameter])
+        ci = gstats.posterior_intervals(result.datatree, [parameter], table["phi"], ci_prob=0.9)
+        out = []
+        for i, r in table.iterrows():
+            lo, hi = (float(ci.iloc[i][c]) for c in ("lo", "hi"))
+            out.append(
+                {
+                    **common,
+                    "arm": arm,
+                    "phi": float(r["phi"]),
+                    "truth": truth,
+                    "median": float(r["median"]),
+                    "posterior_sd": float(r["posterior_sd"]),
+                    "contraction": float(r["contraction"]),
+                    "covered_90": bool(lo <= truth <= hi),
+                    "expected_sd": None if expected is None else float(expected[i]),
+                    "n_new": int(n_new),
+                    "converged": bool(result.converged),
+                    "wall_s": time.perf_counter() - t0,
+                    "plan": plan,
+                }
+            )
+        return out
+
+    t0 = time.perf_counter()
+    before = fit_law(case.table)
+    rows = rows_of("before", before, 0, t0)
+    grid = candidate_settings(
+        case.table, phis=case.truth["phis"], freqs_hz=_FREQS_HZ, delays_ms=[np.nan]
+    )
+    design = design_parameters(
+        before,
+        parameters=[parameter],
+        candidates=grid,
+        sd_ratio=sd_ratio,
+        max_jumps=max_jumps,
+        rng=design_seed,
+    )
+    expected = design.targets["posterior_sd_expected"].to_numpy(float)
+    for r in rows:
+        r["design_reached"] = design.reached
+    n_new = design.n_jumps
+    pick = np.random.default_rng(random_seed).integers(len(grid), size=n_new)
+    counts = np.bincount(pick, minlength=len(grid))
+    arms = {"designed": design.plan, "random": grid.assign(trials=counts)[counts > 0]}
+    for arm, plan in arms.items():
+        t0 = time.perf_counter()
+        new = extra_jumps(case, plan, np.random.default_rng(noise_seed))
+        after = fit_law(pd.concat([case.table, new], ignore_index=True))
+        rows += rows_of(
+            arm,
+            after,
+            n_new,
+            t0,
+            expected if arm == "designed" else None,
+            json.dumps(plan.to_dict("records")),
+        )
+    return rows
 
 
 def _paired_loo(fits: Mapping[str, Any], truth: str, rival: str) -> tuple[float, float, float]:

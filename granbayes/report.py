@@ -396,6 +396,7 @@ def write_diagnosis_report(record: Mapping, selected: xr.DataTree, out: Path) ->
     worst = [m for m in rec["misfit"] if m["significant"]][:5]
     lines += ["", f"Baseline misfit ({rec['n_misfit_cells']} cells with |z| > {z:.2f}):", ""]
     lines += [f"- {m['description']}" for m in worst] or ["- none"]
+    lines += _lack_of_fit_lines(rec)
     lines += [
         "",
         "## Candidates (PSIS-LOO; exact refits or K-fold where Pareto k exceeds ArviZ's good_k)",
@@ -482,7 +483,9 @@ def _verdict_lines(rec: Mapping, base_terms: str) -> list[str]:
         )
     else:
         helped = "No library term removes it. "
-    where = [f"- {m['description']}" for m in rec["residual_misfit"][:8]]
+    where = [f"- {m['description']}" for m in rec["residual_misfit"][:8]] or [
+        "- in no cell alone: in the cells together (the omnibus lack-of-fit test, below)"
+    ]
     return [
         "**Verdict: misfit remains.** The data show physics that the library does not hold. "
         + helped
@@ -491,6 +494,42 @@ def _verdict_lines(rec: Mapping, base_terms: str) -> list[str]:
         *where,
         *ties,
     ]
+
+
+def _lack_of_fit_lines(rec: Mapping) -> list[str]:
+    """The omnibus lack-of-fit test of the baseline and the selected law, in words."""
+    tests = rec.get("lack_of_fit") or {}
+    if not tests:
+        return []
+
+    def text(test: Mapping) -> str:
+        if test.get("p_value") is None:
+            return "not available (no repeated jumps)"
+        return (
+            f"T = {test['statistic']:.1f} on {test['dof_lack']:g} and {test['dof_pure']:g} "
+            f"degrees of freedom, p = {test['p_value']:.3g}"
+        )
+
+    alpha = rec["rule"].get("lack_of_fit_alpha")
+    lines = [
+        "",
+        "Omnibus lack of fit (every height cell together, against the pure error of the "
+        f"repeated jumps): baseline {text(tests['baseline'])}; selected law "
+        f"{text(tests['selected'])}"
+        + (f" (used by the rule at {alpha:g})." if alpha is not None else " (reported only)."),
+    ]
+    p_sel = tests["selected"].get("p_value")
+    if alpha is None and rec["verdict"] == "extended" and p_sel is not None and p_sel < 0.05:
+        lines += [
+            "",
+            f"**Caution:** the selected law's cells are off together (p = {p_sel:.3g}), "
+            "though none is off alone: the added term may stand in for physics the library "
+            "does not hold (in `benchmarks/results/lack_of_fit`, a drag whose coefficient "
+            "changes with depth, or a strength that changes with the intrusion rate, named "
+            "as drag or viscous damping). Test the claim on new jumps (`granbayes design`, "
+            "a fresh replicate).",
+        ]
+    return lines
 
 
 def _tie_lines(sel: Mapping) -> list[str]:

@@ -648,6 +648,54 @@ def test_the_rule_not_the_fits_decides(drag_case, monkeypatch: pytest.MonkeyPatc
     assert rec["selected"]["elpd_gain"] == 0.0
 
 
+def test_the_omnibus_test_is_reported_and_used_only_when_asked(
+    drag_case, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every diagnosis reports the omnibus lack-of-fit test of its baseline and selected
+    law (``granbayes.stats.lack_of_fit``), and the rule uses it (``lack_of_fit_alpha``,
+    0.05 by default; ``None``: reported only): a selected law that leaves no misfit cell
+    but whose cells are off together (here made so: its test's p-value set to 1e-4) gives
+    ``misfit_remains``. The fits are :func:`drag_case`'s (as in
+    :func:`test_the_rule_not_the_fits_decides`)."""
+    import granbayes._criticism._bank as gc
+    import granbayes._criticism._loop as loop
+
+    table, config, extended, fits = drag_case
+    rec = extended.to_json()
+    for law, fit in (("baseline", extended.baseline), ("selected", extended.selected)):
+        real = gstats.lack_of_fit(fit.datatree)
+        assert rec["lack_of_fit"][law]["p_value"] == pytest.approx(real["p_value"])
+        assert rec["lack_of_fit"][law]["dof_lack"] == real["dof_lack"]
+    assert rec["rule"]["lack_of_fit_alpha"] == 0.05 and rec["verdict"] == "extended"
+    assert rec["residual_misfit"] == [] and rec["lack_of_fit"]["selected"]["p_value"] > 0.05
+
+    monkeypatch.setattr(gc, "fit", lambda e, d, c, *, seed, **k: fits[_fit_key(d, c, seed)])
+    real_omnibus = loop._omnibus
+
+    def diffuse(dt):
+        test = real_omnibus(dt)
+        if "c_d" in json.loads(dt.attrs["parameters"]):
+            test["p_value"] = 1e-4
+        return test
+
+    monkeypatch.setattr(loop, "_omnibus", diffuse)
+    reported = DiagnoseSettings(
+        candidates=config.candidates, sampler=FAST, n_threads=1, lack_of_fit_alpha=None
+    )
+    again = diagnose(Experiment(), table, reported, seed=2, log=_quiet).to_json()
+    assert again["verdict"] == "extended"  # reported only: the verdict stands
+    assert again["rule"]["lack_of_fit_alpha"] is None and "omnibus" not in again["rule"]["text"]
+    used = diagnose(Experiment(), table, config, seed=2, log=_quiet).to_json()
+    assert used["selected"]["added"] == ["drag"] and used["residual_misfit"] == []
+    assert used["verdict"] == "misfit_remains"
+    assert used["lack_of_fit"]["selected"]["p_value"] == 1e-4
+    assert used["rule"]["lack_of_fit_alpha"] == 0.05 and "omnibus" in used["rule"]["text"]
+    from granbayes._criticism import DiagnosisRecord
+
+    back = DiagnosisRecord.from_json(json.loads(json.dumps(used)))
+    assert back.lack_of_fit["selected"]["p_value"] == 1e-4
+
+
 def test_cli_diagnose_unconverged_exits_4(tmp_path: Path, capsys) -> None:
     """``granbayes diagnose`` with a step cap too small to converge: exit code 4, results
     written, no candidate selected.

@@ -1,4 +1,5 @@
-"""The experiment that settles a tie (``granbayes.design``, ``granbayes design``).
+"""The experiment that settles it (``granbayes.design``, ``granbayes design``): the jumps
+that separate tied laws, and those that identify a parameter.
 
 The separation per jump is checked against numerical integration, the allocation against
 cases whose answer is known by hand, and the whole path (predictive moments of two fitted
@@ -10,6 +11,7 @@ random ones is a study, not a unit test: ``benchmarks/design_ties.py``.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -22,13 +24,16 @@ from granbayes import Experiment
 from granbayes import _datatree as gdt
 from granbayes._cli import EXIT_INPUT, EXIT_OK, main
 from granbayes._fitting import FitSettings, fit
+from granbayes._identify import allocate_jumps
 from granbayes._sampler import SamplerSettings
 from granbayes._synthetic import write_experiment
 from granbayes.design import (
     LawDraws,
     candidate_settings,
     design_jumps,
+    design_parameters,
     normal_separation,
+    parameter_contraction,
     plan_jumps,
     save_tie_laws,
     ties_of,
@@ -288,8 +293,9 @@ def test_cli_design_refuses_with_one_message(tied, tmp_path: Path, capsys) -> No
     record["selected"]["indistinguishable"] = []
     (bad / "diagnosis.json").write_text(json.dumps(record))
     out = tmp_path / "design"
+    # without a tie, the parameters of the selected law: its posterior is needed
     assert main(["design", str(data), "--diagnosis", str(bad), "--out", str(out)]) == EXIT_INPUT
-    assert "no indistinguishable laws" in capsys.readouterr().err
+    assert "no tie to settle, and no posterior of the selected law" in capsys.readouterr().err
     assert main(["design", str(data), "--diagnosis", str(tmp_path), "--out", str(out)]) == (
         EXIT_INPUT
     )
@@ -330,3 +336,139 @@ def test_the_study_s_extra_jumps_come_from_the_oracle() -> None:
     assert new["height_mm"].iloc[2] == pytest.approx(true + noise[2], abs=1e-9)
     with pytest.raises(ValueError, match="only library truths"):
         extra_jumps(make_case("janssen_saturation", 3), plan, np.random.default_rng(0))
+
+
+# ----------------------------------------------------------------------------------------
+# the jumps that identify a parameter
+# ----------------------------------------------------------------------------------------
+def _exact_normal(n: int, sd: float, seed: int) -> np.ndarray:
+    """``n`` draws with mean 0 and sample SD exactly ``sd``."""
+    z = np.random.default_rng(seed).normal(size=n)
+    return sd * (z - z.mean()) / z.std(ddof=1)
+
+
+def test_a_linear_law_gets_the_jumps_the_conjugate_update_needs() -> None:
+    """Height = a theta + b, scatter sigma: n jumps leave var = 1 / (1/v + n a^2/sigma^2)
+    (the conjugate normal update, exact for a linear law); the plan is the smallest n that
+    halves the SD, all at the informative setting, none at the flat one."""
+    v, a, sigma = 4.0, 3.0, 7.0
+    theta = _exact_normal(2000, math.sqrt(v), 0)[:, None]
+    mean = np.column_stack([a * theta[:, 0] + 5.0, np.full(2000, 80.0)])
+    goal = 0.25 * v  # SD halved
+    n_needed = math.ceil((v / goal - 1.0) * sigma**2 / (a**2 * v))
+    counts, var_after, info, first = allocate_jumps(
+        theta, np.array([0]), mean, np.full(2, sigma**2), np.array([0, 0]), np.array([goal]), 60
+    )
+    assert counts.tolist() == [n_needed, 0]
+    exact = 1.0 / (1.0 / v + n_needed * a**2 / sigma**2)
+    assert var_after[0] == pytest.approx(exact, rel=1e-10)
+    assert info == pytest.approx(0.5 * math.log(v / exact), rel=1e-10)
+    assert first[0] == pytest.approx(0.5 * math.log(1.0 + a**2 * v / sigma**2), rel=1e-10)
+    assert first[1] == 0.0
+    few = allocate_jumps(
+        theta, np.array([0]), mean, np.full(2, sigma**2), np.array([0, 0]), np.array([goal]), 2
+    )
+    assert few[0].tolist() == [2, 0] and few[1][0] > goal  # budget spent, goal not reached
+
+
+def test_a_jump_informs_the_parameters_of_its_own_run_only() -> None:
+    """Two runs (a per-phi fit's volume fractions): the target whose run has no usable
+    setting keeps its variance; the other is served until it reaches its goal."""
+    t0, t1 = _exact_normal(1000, 1.0, 1), _exact_normal(1000, 1.0, 2)
+    theta = np.column_stack([t0, t1])
+    mean = np.column_stack([10.0 * t0, 10.0 * t1])
+    runs = np.array([0, -1])  # the setting of run 1 is not usable
+    counts, var_after, _, first = allocate_jumps(
+        theta, np.array([0, 1]), mean, np.full(2, 1.0), runs, np.array([0.01, 0.01]), 50
+    )
+    assert counts[1] == 0 and first[1] == 0.0
+    assert var_after[1] == pytest.approx(1.0)
+    # 1 / (1 + 100 n) <= 0.01 from n = 1; then no setting serves the other target: stop
+    assert counts.tolist() == [1, 0] and var_after[0] == pytest.approx(1 / 101, rel=1e-10)
+
+
+def test_prior_spread_and_contraction_of_a_fit(tied) -> None:
+    """Prior SDs from 20,000 prior draws match the analytic ones (uniform c_d on [0, 300]:
+    300/sqrt(12); log-uniform k on [200, 50000]: ln(250)/sqrt(12) in log k) within 1.5%
+    (about 5 SE of a sample SD from 20,000 draws); the posterior SD is that of every draw."""
+    _, _, fits = tied
+    table = parameter_contraction(fits["drag"]).set_index(["parameter", "phi"])
+    assert set(table.index.get_level_values("phi")) == {0.602, 0.622}
+    assert table.loc["c_d", "prior_sd"].iloc[0] == pytest.approx(300 / math.sqrt(12), rel=0.015)
+    assert table.loc["k", "prior_sd"].iloc[0] == pytest.approx(
+        math.log(250) / math.sqrt(12), rel=0.015
+    )
+    post = fits["drag"].datatree["posterior"]["c_d"].sel(phi=0.602).values.ravel()
+    row = table.loc[("c_d", 0.602)]
+    assert row["posterior_sd"] == pytest.approx(np.std(post, ddof=1), rel=1e-12)
+    assert row["contraction"] == pytest.approx(1 - row["posterior_sd"] ** 2 / row["prior_sd"] ** 2)
+    assert row["unidentified"] == (row["contraction"] < 0.5)
+    with pytest.raises(ValueError, match="has k, c_d"):
+        parameter_contraction(fits["drag"], ["b"])
+
+
+def test_a_design_for_a_fitted_parameter(tied) -> None:
+    """The plan's settings are candidates of the targets' volume fractions; the expected
+    SD is below the present one and reaches the goal where the plan says so; seeded."""
+    _, _, fits = tied
+    d = design_parameters(fits["drag"], parameters=["c_d"], sd_ratio=0.8, max_jumps=20, n_draws=60)
+    assert d.n_jumps == d.plan["trials"].sum() <= 20
+    assert set(d.plan["phi"]) <= {0.602, 0.622}
+    t = d.targets.set_index("phi")
+    assert (t["posterior_sd_expected"] < t["posterior_sd"]).all()
+    assert (t["information_nats"] > 0).all()
+    assert d.reached == bool(t["reached"].all())
+    if d.reached:
+        assert (t["posterior_sd_expected"] <= 0.8 * t["posterior_sd"] * 1.0001).all()
+    else:
+        assert d.n_jumps == 20
+    doc = json.loads(json.dumps(d.to_json()))
+    assert doc["target"] == "parameters" and doc["goal_sd_ratio"] == 0.8
+    again = design_parameters(
+        fits["drag"], parameters=["c_d"], sd_ratio=0.8, max_jumps=20, n_draws=60
+    )
+    pd.testing.assert_frame_equal(again.plan, d.plan)
+    # by default the unidentified parameters, and nothing to do if there are none
+    table = parameter_contraction(fits["drag"])
+    if table["unidentified"].any():
+        auto = design_parameters(fits["drag"], max_jumps=5, n_draws=60)
+        pairs = set(zip(auto.targets["parameter"], auto.targets["phi"], strict=True))
+        weak = table[table["unidentified"]]
+        assert pairs == set(zip(weak["parameter"], weak["phi"], strict=True))
+    else:
+        with pytest.raises(ValueError, match="nothing to design"):
+            design_parameters(fits["drag"], max_jumps=5, n_draws=60)
+    for bad in ({"goal": 1.0}, {"sd_ratio": 0.0}, {"max_jumps": 0}):
+        with pytest.raises(ValueError):
+            design_parameters(fits["drag"], parameters=["c_d"], **bad)
+
+
+def test_cli_design_for_parameters(tied, tmp_path: Path, capsys) -> None:
+    """``--fit`` (and ``--diagnosis`` without a tie) designs for parameters."""
+    data, diagnosis, fits = tied
+    fit_dir = tmp_path / "fit"
+    fit_dir.mkdir()
+    gdt.write_datatree(fits["drag"].datatree, fit_dir / "posterior.nc")
+    out = tmp_path / "design"
+    args = ["design", str(data), "--fit", str(fit_dir), "--out", str(out), "--draws", "50"]
+    assert main([*args, "--parameter", "c_d", "--sd-ratio", "0.8", "--max-jumps", "12"]) == EXIT_OK
+    rec = json.loads((out / "design.json").read_text())
+    assert rec["target"] == "parameters" and rec["fit"] == str(fit_dir)
+    assert pd.read_csv(out / "plan.csv")["trials"].sum() == rec["n_jumps"] <= 12
+    assert "The jumps that would identify the parameters of depth+drag" in capsys.readouterr().out
+    no_tie = tmp_path / "no-tie"
+    no_tie.mkdir()
+    record = json.loads((diagnosis / "diagnosis.json").read_text())
+    record["selected"]["indistinguishable"] = []
+    (no_tie / "diagnosis.json").write_text(json.dumps(record))
+    gdt.write_datatree(fits["drag"].datatree, no_tie / "posterior_selected.nc")
+    args = ["design", str(data), "--diagnosis", str(no_tie), "--out", str(tmp_path / "d2")]
+    assert main([*args, "--parameter", "c_d", "--max-jumps", "3"]) == EXIT_OK
+    assert json.loads((tmp_path / "d2" / "design.json").read_text())["diagnosis"] == str(no_tie)
+    capsys.readouterr()
+    bad = ["design", str(data), "--fit", str(fit_dir), "--out", str(tmp_path / "d3")]
+    assert main([*bad, "--parameter", "b"]) == EXIT_INPUT
+    assert "has k, c_d" in capsys.readouterr().err
+    assert main([*bad, "--sd-ratio", "1.5"]) == EXIT_INPUT
+    assert "--sd-ratio 1.5" in capsys.readouterr().err
+    assert not (tmp_path / "d3").exists()

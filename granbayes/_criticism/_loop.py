@@ -263,7 +263,7 @@ def diagnose(
     current, added, candidates = base, [], []
     misfit = before
     for round_no in range(1, cfg.max_added + 1):
-        n_misfit = int(misfit_mask(misfit, z_thr).sum())
+        n_misfit = _misfit_signals(misfit, bank.fits[current].datatree, z_thr, cfg)
         if not cfg.candidate_terms(current) or (round_no > 1 and n_misfit == 0):
             break
         log(f"Round {round_no}: trying {', '.join(cfg.candidate_terms(current))}")
@@ -301,6 +301,27 @@ def diagnose(
     return Diagnosis(
         baseline, selected, before, after, candidates, added, record, bank.fits, dict(bank.seconds)
     )
+
+
+def _omnibus(dt) -> dict[str, float]:
+    """The omnibus lack-of-fit test of a fit's jump heights (NaN without heights)."""
+    if "height_mm" not in dt["observed_data"].to_dataset():
+        nan = float("nan")
+        return {"statistic": nan, "dof_lack": nan, "dof_pure": nan, "p_value": nan}
+    test = stats.lack_of_fit(dt)
+    return {k: float(test[k]) for k in ("statistic", "dof_lack", "dof_pure", "p_value")}
+
+
+def _lack_of_fit_rejects(dt, cfg: DiagnoseSettings) -> bool:
+    """Whether the rule counts the omnibus test of a fit as misfit."""
+    if cfg.lack_of_fit_alpha is None:
+        return False
+    return bool(_omnibus(dt)["p_value"] < cfg.lack_of_fit_alpha)  # NaN: False
+
+
+def _misfit_signals(cells: pd.DataFrame, dt, z_thr: dict[str, float], cfg) -> int:
+    """Misfit cells of a law, plus one if the rule uses the omnibus test and it rejects."""
+    return int(misfit_mask(cells, z_thr).sum()) + int(_lack_of_fit_rejects(dt, cfg))
 
 
 def _record(
@@ -350,6 +371,11 @@ def _record(
     }
     n_before = int(misfit_mask(before, z_thr).sum())
     residual = CellResult.from_table(after[misfit_mask(after, z_thr)], z_thr)
+    omnibus = {"baseline": _omnibus(baseline.datatree), "selected": _omnibus(selected.datatree)}
+    alpha = cfg.lack_of_fit_alpha
+    flags = {
+        law: alpha is not None and bool(test["p_value"] < alpha) for law, test in omnibus.items()
+    }
     ties = tuple(
         Tie(r, term, c.term, c.vs_selected, c.vs_selected_se, c.converged)
         for r, term in enumerate(added, start=1)
@@ -366,7 +392,9 @@ def _record(
         misfit=CellResult.from_table(before, z_thr),
         n_misfit_cells=n_before,
         candidates=tuple(candidates),
-        verdict=verdict(added, n_before, len(residual)),
+        verdict=verdict(
+            added, n_before + int(flags["baseline"]), len(residual) + int(flags["selected"])
+        ),
         selected=SelectedResult(
             terms=tuple(current),
             added=tuple(added),
@@ -388,4 +416,5 @@ def _record(
         seed=int(bank.seed),
         data_source=bank.data_source,
         environment=environment(),
+        lack_of_fit=omnibus,
     )

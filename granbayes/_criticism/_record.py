@@ -8,6 +8,7 @@ attributes, not string keys.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -343,6 +344,8 @@ class RuleRecord:
         The rule in words.
     z_thresholds : dict of str to float
         The threshold of each kind of measurement's cells (``z_threshold_by_kind``).
+    lack_of_fit_alpha : float or None
+        Level of the omnibus lack-of-fit test when the rule uses it (None: reported only).
     """
 
     min_gain: float
@@ -354,6 +357,7 @@ class RuleRecord:
     screen_margin: float
     text: str
     z_thresholds: dict[str, float] = field(default_factory=dict)
+    lack_of_fit_alpha: float | None = None
 
     @classmethod
     def of(
@@ -394,6 +398,12 @@ class RuleRecord:
             f"same margin (> {settings.min_gain:g} nats and > {settings.se_factor:g} SE of the "
             "paired difference) is reported as indistinguishable from it"
         )
+        if settings.lack_of_fit_alpha is not None:
+            text += (
+                "; a law also shows misfit when its omnibus lack-of-fit test (every height "
+                f"cell together against the repeats' pure error) rejects at "
+                f"{settings.lack_of_fit_alpha:g}"
+            )
         if settings.screen:
             text += (
                 "; a candidate is fitted only if its screened log-likelihood gain reaches "
@@ -410,6 +420,7 @@ class RuleRecord:
             screen_margin=settings.screen_margin,
             text=text,
             z_thresholds=dict(z_thresholds),
+            lack_of_fit_alpha=settings.lack_of_fit_alpha,
         )
 
     def to_json(self) -> dict:
@@ -441,6 +452,10 @@ class DiagnosisRecord:
     data_source : str
     environment : dict
         Package versions and machine (``versions``, ``machine``).
+    lack_of_fit : dict
+        The omnibus lack-of-fit test (:func:`granbayes.stats.lack_of_fit`) of the
+        ``baseline`` and of the ``selected`` law: ``statistic``, ``dof_lack``,
+        ``dof_pure``, ``p_value`` (NaN without repeated jumps).
     """
 
     baseline: BaselineResult
@@ -455,6 +470,7 @@ class DiagnosisRecord:
     seed: int
     data_source: str
     environment: dict[str, Any] = field(default_factory=dict)
+    lack_of_fit: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def all_converged(self) -> bool:
@@ -471,6 +487,10 @@ class DiagnosisRecord:
             "verdict": self.verdict.value,
             "selected": self.selected.to_json(),
             "residual_misfit": [c.to_json() for c in self.residual_misfit],
+            "lack_of_fit": {
+                law: {k: _finite_or_none(v) for k, v in test.items()}
+                for law, test in self.lack_of_fit.items()
+            },
             "fits": [f.to_json() for f in self.fits],
             "all_converged": self.all_converged,
             "rule": self.rule.to_json(),
@@ -533,7 +553,16 @@ class DiagnosisRecord:
             seed=int(doc["seed"]),
             data_source=doc["data_source"],
             environment={k: doc[k] for k in ("versions", "machine") if k in doc},
+            lack_of_fit={
+                law: {k: float("nan") if v is None else float(v) for k, v in test.items()}
+                for law, test in doc.get("lack_of_fit", {}).items()
+            },
         )
+
+
+def _finite_or_none(value: float) -> float | None:
+    """JSON has no NaN: ``None`` for it."""
+    return float(value) if math.isfinite(value) else None
 
 
 def _candidate_from_json(doc: Mapping[str, Any]) -> Candidate:

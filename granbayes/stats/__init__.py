@@ -10,7 +10,7 @@ from here.
   default being 89%), :func:`eti_probs`, :func:`interval`, :func:`fmt_triple`,
   :func:`fmt_interval`.
 * Residual cells of jump heights (one command at one volume fraction and setting,
-  :data:`CELL_KEYS`): :func:`residual_table`, :func:`misfit_threshold`,
+  :data:`CELL_KEYS`): :func:`residual_table`, :func:`misfit_threshold`, :func:`lack_of_fit`,
   :func:`describe_cell`, :func:`rmse_mm`, :func:`cell_statistics`,
   :func:`mean_discrepancy`, :func:`observed_jumps`; of the other kinds of measurement
   (phases of tracked jumps, depth bins of intrusion curves): :func:`trajectory_cells`,
@@ -31,6 +31,7 @@ from ._cells import (
     cell_keys,
     cell_statistics,
     describe_cell,
+    lack_of_fit,
     mean_discrepancy,
     misfit_threshold,
     observed_jumps,
@@ -99,6 +100,7 @@ __all__ = [
     "posterior_draws",
     "posterior_intervals",
     "predictive_cells",
+    "lack_of_fit",
     "residual_table",
     "rmse_mm",
     "run_diagnostics",

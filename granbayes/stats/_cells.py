@@ -7,6 +7,7 @@ trial-to-trial scatter and their mean the law's misfit there.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
 
@@ -170,6 +171,112 @@ def misfit_threshold(residuals: pd.DataFrame, family_alpha: float) -> float:
     dof = float(residuals["dof"].min()) if len(residuals) else 0.0
     q = family_alpha / (2.0 * n)
     return float(stats.t.isf(q, dof) if dof > 0 else stats.norm.isf(q))
+
+
+def _fitted_coordinates(dt: xr.DataTree) -> dict[str, int]:
+    """Per sampler run, how many of its coordinates the law's mean heights depend on.
+
+    The force law's coordinates and the calibrated robot's; not the noise scales.
+    """
+    shaping = set(json.loads(dt.attrs.get("parameters", "[]")))
+    shaping |= set(json.loads(dt.attrs.get("calibrated", "{}")))
+    out = {}
+    for run in json.loads(dt.attrs.get("runs", "[]")):
+        names = [c.split("[")[0].split(":")[0] for c in run["coordinates"]]
+        out[run["label"]] = sum(n in shaping for n in names)
+    return out
+
+
+def lack_of_fit(dt: xr.DataTree, *, n_null: int = 200_000, rng: int = 0) -> dict:
+    """Omnibus lack-of-fit test of a law's jump heights against their pure error.
+
+    The classic test of a regression with repeated observations (Fisher 1922; e.g. Draper &
+    Smith, *Applied Regression Analysis*, 3rd ed., ch. 2.1), one volume fraction at a time
+    because the scatter is fitted per volume fraction: at volume fraction ``phi`` with
+    ``C`` cells, the cell means' squared distance from the law's posterior-mean heights,
+
+        T_phi = sum_cells n_c (ybar_c - yhat_c)^2 / s_phi^2,
+
+    over the pure-error variance ``s_phi^2`` of the repeats (``d_phi`` = jumps - cells
+    degrees of freedom), is summed into ``T``. Under a law that is right and linear
+    enough in its ``p`` fitted coordinates, ``T_phi`` is distributed as
+    ``chi2(C - p) / (chi2(d_phi) / d_phi)``, independently across volume fractions; the
+    p-value is ``T``'s tail in the sum of those (``n_null`` Monte Carlo draws, seeded:
+    deterministic). A ``quadratic`` law's coordinates are shared: they are counted once,
+    spread over the volume fractions in proportion to their cells.
+
+    The cell test (:func:`misfit_threshold`) asks whether *one* cell is off; this one
+    whether the cells are off *together*: many small misfits, each below a cell's
+    threshold, that a law's wrong shape leaves across the design.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit with jump heights (its ``observed_data`` and ``posterior_predictive``
+        groups, and the runs' coordinates in its attributes).
+    n_null : int
+        Monte Carlo draws of the reference distribution.
+    rng : int
+        Seed of those draws.
+
+    Returns
+    -------
+    dict
+        ``statistic`` (``T``), ``dof_lack`` (``C - p`` over the volume fractions used),
+        ``dof_pure``, ``p_value`` (NaN where no volume fraction has repeats and more cells
+        than coordinates) and ``by_phi`` (a table: ``phi``, ``cells``, ``coordinates``,
+        ``dof_lack``, ``dof_pure``, ``s_mm`` (the pure-error SD), ``statistic``).
+    """
+    obs = observed_jumps(dt)
+    y = obs["height_mm"].to_numpy(float)
+    sim = dt["posterior_predictive"]["height_sim_mm"].values.reshape(-1, len(y)).mean(axis=0)
+    keys = [k for k in cell_keys(obs) if k != "phi"]
+    frame = obs[["phi", *keys]].assign(y=y, sim=sim)
+    coords = _fitted_coordinates(dt)
+    runs = json.loads(dt.attrs.get("runs", "[]"))
+    n_cells_total = frame.groupby(["phi", *keys]).ngroups
+    rows = []
+    for phi, g in frame.groupby("phi", sort=True):
+        cells = g.groupby(keys, dropna=False)
+        n = cells["y"].size()
+        dof_pure = float((n - 1).sum())
+        per_phi = [r["label"] for r in runs if r["label"] == f"phi={phi:g}"]
+        if per_phi:
+            p = float(coords[per_phi[0]])
+        else:  # one run for every volume fraction: its coordinates spread over the cells
+            p = float(sum(coords.values())) * len(n) / max(n_cells_total, 1)
+        ss_pure = float(((g["y"] - cells["y"].transform("mean")) ** 2).sum())
+        s2 = ss_pure / dof_pure if dof_pure > 0 else math.nan
+        ss_lack = float((n * (cells["y"].mean() - cells["sim"].mean()) ** 2).sum())
+        rows.append(
+            {
+                "phi": float(phi),
+                "cells": len(n),
+                "coordinates": p,
+                "dof_lack": len(n) - p,
+                "dof_pure": dof_pure,
+                "s_mm": math.sqrt(s2) if s2 == s2 else math.nan,
+                "statistic": ss_lack / s2 if s2 > 0 else math.nan,
+            }
+        )
+    table = pd.DataFrame(rows)
+    used = table[(table["dof_pure"] > 0) & (table["dof_lack"] > 0) & table["statistic"].notna()]
+    out = {
+        "statistic": float(used["statistic"].sum()),
+        "dof_lack": float(used["dof_lack"].sum()),
+        "dof_pure": float(used["dof_pure"].sum()),
+        "p_value": math.nan,
+        "by_phi": table,
+    }
+    if used.empty:
+        return out
+    gen = np.random.default_rng(rng)
+    null = np.zeros(n_null)
+    for a, d in zip(used["dof_lack"], used["dof_pure"], strict=True):
+        null += gen.chisquare(a, n_null) / (gen.chisquare(d, n_null) / d)
+    # the Monte Carlo tail, never below its resolution
+    out["p_value"] = float(max(np.mean(null >= out["statistic"]), 1.0 / n_null))
+    return out
 
 
 def describe_cell(row: Mapping) -> str:
