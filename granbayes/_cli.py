@@ -818,10 +818,10 @@ def _add_diagnose_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--lack-of-fit-alpha",
-        default="0.05",
+        default="0.01",
         metavar="ALPHA",
         help="level at which the omnibus lack-of-fit test (every height cell together) shows "
-        "misfit, as a misfit cell does; 'none': the test is reported only (default 0.05)",
+        "misfit, as a misfit cell does; 'none': the test is reported only (default 0.01)",
     )
 
 

@@ -653,7 +653,7 @@ def test_the_omnibus_test_is_reported_and_used_only_when_asked(
 ) -> None:
     """Every diagnosis reports the omnibus lack-of-fit test of its baseline and selected
     law (``granbayes.stats.lack_of_fit``), and the rule uses it (``lack_of_fit_alpha``,
-    0.05 by default; ``None``: reported only): a selected law that leaves no misfit cell
+    0.01 by default; ``None``: reported only): a selected law that leaves no misfit cell
     but whose cells are off together (here made so: its test's p-value set to 1e-4) gives
     ``misfit_remains``. The fits are :func:`drag_case`'s (as in
     :func:`test_the_rule_not_the_fits_decides`)."""
@@ -666,8 +666,8 @@ def test_the_omnibus_test_is_reported_and_used_only_when_asked(
         real = gstats.lack_of_fit(fit.datatree)
         assert rec["lack_of_fit"][law]["p_value"] == pytest.approx(real["p_value"])
         assert rec["lack_of_fit"][law]["dof_lack"] == real["dof_lack"]
-    assert rec["rule"]["lack_of_fit_alpha"] == 0.05 and rec["verdict"] == "extended"
-    assert rec["residual_misfit"] == [] and rec["lack_of_fit"]["selected"]["p_value"] > 0.05
+    assert rec["rule"]["lack_of_fit_alpha"] == 0.01 and rec["verdict"] == "extended"
+    assert rec["residual_misfit"] == [] and rec["lack_of_fit"]["selected"]["p_value"] > 0.01
 
     monkeypatch.setattr(gc, "fit", lambda e, d, c, *, seed, **k: fits[_fit_key(d, c, seed)])
     real_omnibus = loop._omnibus
@@ -689,7 +689,7 @@ def test_the_omnibus_test_is_reported_and_used_only_when_asked(
     assert used["selected"]["added"] == ["drag"] and used["residual_misfit"] == []
     assert used["verdict"] == "misfit_remains"
     assert used["lack_of_fit"]["selected"]["p_value"] == 1e-4
-    assert used["rule"]["lack_of_fit_alpha"] == 0.05 and "omnibus" in used["rule"]["text"]
+    assert used["rule"]["lack_of_fit_alpha"] == 0.01 and "omnibus" in used["rule"]["text"]
     from granbayes._criticism import DiagnosisRecord
 
     back = DiagnosisRecord.from_json(json.loads(json.dumps(used)))
