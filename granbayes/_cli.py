@@ -1112,7 +1112,7 @@ def _parameter_design(args: argparse.Namespace, candidates: pd.DataFrame, sha: s
 
 def _parameter_design_lines(design, data_source: str) -> list[str]:
     """A parameter design in words (``design.md``)."""
-    from .design import SETTINGS
+    from ._design_draws import SETTINGS
     from .report import markdown_table
 
     goal = (
@@ -1165,7 +1165,7 @@ def _parameter_design_lines(design, data_source: str) -> list[str]:
 
 def _design_lines(tie: dict, design, record: dict) -> list[str]:
     """The plan in words (``design.md``)."""
-    from .design import SETTINGS
+    from ._design_draws import SETTINGS
     from .report import markdown_table
 
     a, b = design.laws

@@ -168,3 +168,55 @@ def law_draws(
         ),
         failed,
     )
+
+
+def usable_settings(failed: np.ndarray, whose: str, which: str) -> tuple[np.ndarray, list[str]]:
+    """The settings a design may use: where at most 5% of the draws' jumps did not finish.
+
+    Parameters
+    ----------
+    failed : ndarray, shape (n_settings,)
+        Share of the draws whose jump did not finish at each setting (:func:`law_draws`).
+    whose, which : str
+        How the messages name the law(s): ``"the law's"`` / ``"the law"``, or ``"a
+        law's"`` / ``"every law"``.
+
+    Returns
+    -------
+    usable : ndarray of bool
+    notes : list of str
+        A note on the settings dropped, if any.
+
+    Raises
+    ------
+    ValueError
+        If no setting is usable.
+    """
+    usable = failed <= 0.05
+    notes = []
+    if not usable.all():
+        notes.append(
+            f"{int((~usable).sum())} of {len(failed)} settings dropped: {whose} jump did not "
+            "finish in more than 5% of the draws there"
+        )
+    if not usable.any():
+        raise ValueError(f"no setting that {which} predicts: widen the candidates")
+    return usable, notes
+
+
+def plan_of(candidates: pd.DataFrame, counts: np.ndarray) -> pd.DataFrame:
+    """The plan's rows: the settings with jumps and their ``trials``, most trials first.
+
+    Parameters
+    ----------
+    candidates : pandas.DataFrame
+        The settings (:data:`SETTINGS` columns).
+    counts : ndarray of int
+        Jumps per setting.
+
+    Returns
+    -------
+    pandas.DataFrame
+    """
+    plan = candidates.loc[counts > 0, list(SETTINGS)].assign(trials=counts[counts > 0])
+    return plan.sort_values("trials", ascending=False, kind="stable").reset_index(drop=True)

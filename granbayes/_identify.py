@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ._design_draws import SETTINGS, candidate_settings, law_draws
+from ._design_draws import candidate_settings, law_draws, plan_of, usable_settings
 from ._saved import SavedFit, as_saved_fit
 from .stats import IDENTIFIABILITY_LEVELS
 
@@ -388,15 +388,7 @@ def design_parameters(
     n_total = post.sizes["chain"] * post.sizes["draw"]
     pick = np.sort(rng.choice(n_total, size=min(n_draws, n_total), replace=False))
     draws, failed = law_draws(s, candidates, pick)
-    usable = failed <= 0.05
-    notes = []
-    if not usable.all():
-        notes.append(
-            f"{int((~usable).sum())} of {len(candidates)} settings dropped: the law's jump "
-            "did not finish in more than 5% of the draws there"
-        )
-    if not usable.any():
-        raise ValueError("no setting the law predicts: widen the candidates")
+    usable, notes = usable_settings(failed, "the law's", "the law")
     labels = list(s.models())
     target_run = np.array([labels.index(r) for r in s.runs_of(table["phi"].to_numpy(float))])
     pairs = zip(table["parameter"], table["phi"], strict=True)
@@ -430,8 +422,7 @@ def design_parameters(
         sd_mm=np.sqrt(np.maximum(mean_mm.var(axis=0) + noise, 0.0)),
         information_nats=first,
     )[usable]
-    plan = candidates.loc[counts > 0, list(SETTINGS)].assign(trials=counts[counts > 0])
-    plan = plan.sort_values("trials", ascending=False, kind="stable").reset_index(drop=True)
+    plan = plan_of(candidates, counts)
     return ParameterDesign(
         plan=plan,
         targets=targets,

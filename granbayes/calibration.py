@@ -622,25 +622,13 @@ def lack_of_fit_case(
         largest cell |z|, convergence and wall time [s].
     """
     from . import stats as gstats
-    from ._fitting import FitSettings, fit
 
     cfg = settings or DiagnoseSettings()
     children = np.random.SeedSequence(seed).spawn(2)
     case_seed, fit_seed = (int(c.generate_state(1)[0]) for c in children)
     case = make_case(kind, case_seed)
     t0 = time.perf_counter()
-    result = fit(
-        case.experiment,
-        case.table,
-        FitSettings(
-            terms=terms_of((*cfg.baseline, *added)),
-            sampler=cfg.sampler,
-            n_threads=1,
-            n_prior_draws=0,
-            calibration=cfg.calibration,
-        ),
-        seed=fit_seed,
-    )
+    result = _fit_case_law(case, case.table, terms_of((*cfg.baseline, *added)), cfg, fit_seed, 1)
     test = gstats.lack_of_fit(result.datatree)
     cells = gstats.residual_table(result.datatree)
     return [
@@ -1811,7 +1799,6 @@ def design_parameter_case(
         jumps, convergence and wall time [s].
     """
     from . import stats as gstats
-    from ._fitting import FitSettings, fit
     from .design import parameter_contraction
 
     if kind not in LIBRARY_EFFECTS:
@@ -1825,18 +1812,7 @@ def design_parameter_case(
     (parameter,) = (p.name for p in TERMS[kind].parameters)
 
     def fit_law(table: pd.DataFrame):
-        return fit(
-            case.experiment,
-            table,
-            FitSettings(
-                terms=terms,
-                sampler=cfg.sampler,
-                n_threads=n_threads,
-                n_prior_draws=0,
-                calibration=cfg.calibration,
-            ),
-            seed=fit_seed,
-        )
+        return _fit_case_law(case, table, terms, cfg, fit_seed, n_threads)
 
     common = {
         "kind": kind,
@@ -1921,6 +1897,31 @@ def _paired_loo(fits: Mapping[str, Any], truth: str, rival: str) -> tuple[float,
 
 
 @renamed_keyword("config")
+def _fit_case_law(
+    case: Case,
+    table: pd.DataFrame,
+    terms: Sequence[str],
+    settings: DiagnoseSettings,
+    seed: int,
+    n_threads: int | None = None,
+) -> Any:
+    """A law fitted to a study case's jumps as ``diagnose`` fits one (no prior draws)."""
+    from ._fitting import FitSettings, fit
+
+    return fit(
+        case.experiment,
+        table,
+        FitSettings(
+            terms=tuple(terms),
+            sampler=settings.sampler,
+            n_threads=n_threads,
+            n_prior_draws=0,
+            calibration=settings.calibration,
+        ),
+        seed=seed,
+    )
+
+
 def design_tie_case(
     kind: str,
     index: int,
@@ -1969,8 +1970,6 @@ def design_tie_case(
         the design's expected difference and SE, the larger max Pareto k, convergence
         and wall time [s].
     """
-    from ._fitting import FitSettings, fit
-
     if kind not in LIBRARY_EFFECTS:
         raise ValueError(f"kind {kind!r}: a library term is needed as the truth")
     cfg = settings or DiagnoseSettings()
@@ -1983,18 +1982,7 @@ def design_tie_case(
 
     def fit_both(table: pd.DataFrame) -> dict[str, Any]:
         return {
-            name: fit(
-                case.experiment,
-                table,
-                FitSettings(
-                    terms=terms,
-                    sampler=cfg.sampler,
-                    n_threads=n_threads,
-                    n_prior_draws=0,
-                    calibration=cfg.calibration,
-                ),
-                seed=fit_seed,
-            )
+            name: _fit_case_law(case, table, terms, cfg, fit_seed, n_threads)
             for name, terms in laws.items()
         }
 

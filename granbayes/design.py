@@ -66,7 +66,13 @@ from scipy.special import logsumexp
 
 from ._criticism import DiagnoseSettings
 from ._deprecated import renamed_keyword
-from ._design_draws import SETTINGS, LawDraws, candidate_settings, law_draws
+from ._design_draws import (
+    LawDraws,
+    candidate_settings,
+    law_draws,
+    plan_of,
+    usable_settings,
+)
 from ._identify import ParameterDesign, design_parameters, parameter_contraction
 from ._saved import SavedFit, as_saved_fit, load_fit
 from .forces import terms_of
@@ -471,15 +477,7 @@ def design_jumps(
     for law, s in saved.items():
         draws[law], f = law_draws(s, candidates, pick)
         failed = np.maximum(failed, f)
-    usable = failed <= 0.05
-    notes = []
-    if not usable.all():
-        notes.append(
-            f"{int((~usable).sum())} of {len(candidates)} settings dropped: a law's jump did "
-            "not finish in more than 5% of the draws there"
-        )
-    if not usable.any():
-        raise ValueError("no setting that every law predicts: widen the candidates")
+    usable, notes = usable_settings(failed, "a law's", "every law")
     draws = {
         law: LawDraws(
             d.mean_mm[:, usable],
@@ -515,8 +513,7 @@ def design_jumps(
     counts, hyp, settled, first_ratio = plan_jumps(
         draws, full, max_jumps=max_jumps, min_gain=cfg.min_gain, se_factor=cfg.se_factor
     )
-    plan = table.loc[counts > 0, list(SETTINGS)].assign(trials=counts[counts > 0])
-    plan = plan.sort_values("trials", ascending=False, kind="stable").reset_index(drop=True)
+    plan = plan_of(table, counts)
     if first_ratio > 1.0:
         notes.append("the data already separate the laws: no jump needed")
     if (hyp["ess_share"] < 0.05).any():
