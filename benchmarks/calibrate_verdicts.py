@@ -236,6 +236,15 @@ def figure(results: pd.DataFrame, summary: pd.DataFrame, stopped: str = "") -> F
     return fig
 
 
+def _omnibus_level(results: pd.DataFrame) -> float | None:
+    """The omnibus lack-of-fit test's level the rows were diagnosed with (None: rows made
+    before the test entered the rule, or with it reported only)."""
+    if "lack_of_fit_alpha" not in results:
+        return None
+    levels = results["lack_of_fit_alpha"].dropna().unique()
+    return float(levels[0]) if len(levels) == 1 else None
+
+
 def write_summary(
     out: Path,
     results: pd.DataFrame,
@@ -331,7 +340,13 @@ def write_summary(
         )
         + ". Rule: gain > "
         f"{config.min_gain:g} nats and > {config.se_factor:g} SE, misfit present (family-wise "
-        f"alpha {config.family_alpha:g}) or gain > {config.strong_gain:g} nats.",
+        f"alpha {config.family_alpha:g} over the cells"
+        + (
+            f", or the omnibus lack-of-fit test at {omnibus:g}"
+            if (omnibus := _omnibus_level(results)) is not None
+            else ""
+        )
+        + f") or gain > {config.strong_gain:g} nats.",
         "",
         markdown_table(fmt),
         "",
