@@ -734,8 +734,8 @@ def test_cli_diagnose_unconverged_exits_4(tmp_path: Path, capsys) -> None:
 
 
 def test_diagnose_bad_input_is_refused_before_any_fit(tmp_path: Path, capsys, monkeypatch):
-    """Unknown term, one ensemble and bad data: exit 2, one line, nothing written, no
-    sampling."""
+    """Unknown term, one ensemble, a level of the omnibus test outside (0, 1) and bad data:
+    exit 2, one line, nothing written, no sampling."""
     import granbayes._criticism._bank as gc
 
     monkeypatch.setattr(gc, "fit", lambda *a, **k: pytest.fail("sampled despite bad input"))
@@ -747,6 +747,12 @@ def test_diagnose_bad_input_is_refused_before_any_fit(tmp_path: Path, capsys, mo
     code = main(["diagnose", str(folder), "--out", str(tmp_path / "o"), "--ensembles", "1"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "--ensembles 1" in err and len(err.splitlines()) == 1
+    for level in ("1.5", "abc", "0"):
+        code = main(
+            ["diagnose", str(folder), "--out", str(tmp_path / "o"), "--lack-of-fit-alpha", level]
+        )
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and f"--lack-of-fit-alpha {level}" in err and len(err.splitlines()) == 1
     bad = table.copy()
     bad.loc[2, "command"] = "hop"
     bad.to_csv(folder / "jumps.csv", index=False)
@@ -755,6 +761,27 @@ def test_diagnose_bad_input_is_refused_before_any_fit(tmp_path: Path, capsys, mo
     assert code == 2 and "jumps.csv" in err and "row 3" in err and "command" in err
     assert len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_cli_diagnose_passes_the_omnibus_level(tmp_path: Path, monkeypatch) -> None:
+    """``--lack-of-fit-alpha``: 0.01 by default, a level, or ``none`` (reported only)."""
+    import granbayes._criticism as gcrit
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def capture(experiment, data, settings, **kwargs):
+        seen.append(settings.lack_of_fit_alpha)
+        raise Stop
+
+    monkeypatch.setattr(gcrit, "diagnose", capture)
+    folder = write_experiment(tmp_path / "exp", _table({}), Experiment())
+    for extra in ([], ["--lack-of-fit-alpha", "0.05"], ["--lack-of-fit-alpha", "none"]):
+        with pytest.raises(Stop):
+            main(["diagnose", str(folder), "--out", str(tmp_path / "o"), *extra])
+    assert seen == [0.01, 0.05, None]
 
 
 # ----------------------------------------------------------------------------------------
