@@ -262,8 +262,17 @@ def diagnose(
     z_thr = kind_thresholds(before, cfg.family_alpha)
     current, added, candidates = base, [], []
     misfit = before
+    tests: dict[tuple[str, ...], dict[str, float]] = {}  # the omnibus test, once per law
+
+    def omnibus(key: tuple[str, ...]) -> dict[str, float]:
+        if key not in tests:
+            tests[key] = _omnibus(bank.fits[key].datatree)
+        return tests[key]
+
     for round_no in range(1, cfg.max_added + 1):
-        n_misfit = _misfit_signals(misfit, bank.fits[current].datatree, z_thr, cfg)
+        n_misfit = int(misfit_mask(misfit, z_thr).sum())
+        if cfg.lack_of_fit_alpha is not None:  # the test's rejection is one more signal
+            n_misfit += int(_rejects(omnibus(current), cfg.lack_of_fit_alpha))
         if not cfg.candidate_terms(current) or (round_no > 1 and n_misfit == 0):
             break
         log(f"Round {round_no}: trying {', '.join(cfg.candidate_terms(current))}")
@@ -297,7 +306,10 @@ def diagnose(
         log(f"  added {chosen.term}")
     selected = bank.fits[current]
     after = cells_of(selected.datatree)
-    record = _record(bank, pointwise, base, current, before, after, candidates, added, z_thr)
+    tested = {"baseline": omnibus(base), "selected": omnibus(current)}
+    record = _record(
+        bank, pointwise, base, current, before, after, candidates, added, z_thr, tested
+    )
     return Diagnosis(
         baseline, selected, before, after, candidates, added, record, bank.fits, dict(bank.seconds)
     )
@@ -312,16 +324,9 @@ def _omnibus(dt) -> dict[str, float]:
     return {k: float(test[k]) for k in ("statistic", "dof_lack", "dof_pure", "p_value")}
 
 
-def _lack_of_fit_rejects(dt, cfg: DiagnoseSettings) -> bool:
-    """Whether the rule counts the omnibus test of a fit as misfit."""
-    if cfg.lack_of_fit_alpha is None:
-        return False
-    return bool(_omnibus(dt)["p_value"] < cfg.lack_of_fit_alpha)  # NaN: False
-
-
-def _misfit_signals(cells: pd.DataFrame, dt, z_thr: dict[str, float], cfg) -> int:
-    """Misfit cells of a law, plus one if the rule uses the omnibus test and it rejects."""
-    return int(misfit_mask(cells, z_thr).sum()) + int(_lack_of_fit_rejects(dt, cfg))
+def _rejects(test: Mapping[str, float], alpha: float | None) -> bool:
+    """Whether the rule counts an omnibus test as misfit (not with ``alpha`` None or NaN)."""
+    return alpha is not None and bool(test["p_value"] < alpha)
 
 
 def _record(
@@ -334,8 +339,9 @@ def _record(
     candidates: list[Candidate],
     added: list[str],
     z_thr: dict[str, float],
+    omnibus: dict[str, dict[str, float]],
 ) -> DiagnosisRecord:
-    """The typed record of a finished loop."""
+    """The typed record of a finished loop (``omnibus``: the baseline's and selected's test)."""
     cfg = bank.settings
     baseline, selected = bank.fits[base], bank.fits[current]
     if current == base:
@@ -371,11 +377,7 @@ def _record(
     }
     n_before = int(misfit_mask(before, z_thr).sum())
     residual = CellResult.from_table(after[misfit_mask(after, z_thr)], z_thr)
-    omnibus = {"baseline": _omnibus(baseline.datatree), "selected": _omnibus(selected.datatree)}
-    alpha = cfg.lack_of_fit_alpha
-    flags = {
-        law: alpha is not None and bool(test["p_value"] < alpha) for law, test in omnibus.items()
-    }
+    flags = {law: _rejects(test, cfg.lack_of_fit_alpha) for law, test in omnibus.items()}
     ties = tuple(
         Tie(r, term, c.term, c.vs_selected, c.vs_selected_se, c.converged)
         for r, term in enumerate(added, start=1)
