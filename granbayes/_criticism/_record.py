@@ -8,7 +8,6 @@ attributes, not string keys.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -17,7 +16,7 @@ import pandas as pd
 
 from .. import stats
 from ._cells import KIND_CELL_KEYS
-from ._rule import Candidate, DiagnoseSettings, Estimate, Verdict
+from ._rule import Candidate, DiagnoseSettings, Estimate, Verdict, json_number
 
 
 def _missing(value: Any) -> bool:
@@ -488,7 +487,7 @@ class DiagnosisRecord:
             "selected": self.selected.to_json(),
             "residual_misfit": [c.to_json() for c in self.residual_misfit],
             "lack_of_fit": {
-                law: {k: _finite_or_none(v) for k, v in test.items()}
+                law: {k: json_number(v) for k, v in test.items()}
                 for law, test in self.lack_of_fit.items()
             },
             "fits": [f.to_json() for f in self.fits],
@@ -558,11 +557,6 @@ class DiagnosisRecord:
                 for law, test in doc.get("lack_of_fit", {}).items()
             },
         )
-
-
-def _finite_or_none(value: float) -> float | None:
-    """JSON has no NaN: ``None`` for it."""
-    return float(value) if math.isfinite(value) else None
 
 
 def _candidate_from_json(doc: Mapping[str, Any]) -> Candidate:

@@ -14,7 +14,7 @@ import enum
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -150,6 +150,11 @@ class DiagnoseSettings:
         return [t for t in terms_of(pool) if t not in current and not TERMS[t].required]
 
 
+def json_number(value: Any) -> Any:
+    """A value as ``diagnosis.json`` writes it: a non-finite float as null (JSON has no NaN)."""
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
 @dataclass(frozen=True)
 class Candidate:
     """One candidate extension of the current law, scored against it and the baseline.
@@ -211,10 +216,7 @@ class Candidate:
 
     def to_json(self) -> dict:
         """The ``diagnosis.json`` form (data-format.md names; NaN written as null)."""
-        d = {
-            k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-            for k, v in asdict(self).items()
-        }
+        d = {k: json_number(v) for k, v in asdict(self).items()}
         d["added"] = list(self.added)
         d["estimate"] = self.estimate.value
         d["elpd_diff"] = d.pop("gain_vs_baseline")
