@@ -47,7 +47,7 @@ import pandas as pd
 
 from ._design_draws import candidate_settings, law_draws, plan_of, usable_settings
 from ._saved import SavedFit, as_saved_fit
-from .stats import IDENTIFIABILITY_LEVELS
+from .stats import IDENTIFIABILITY_LEVELS, identifiability_table
 
 __all__ = ["ParameterDesign", "design_parameters", "parameter_contraction"]
 
@@ -59,6 +59,20 @@ UNIDENTIFIED = IDENTIFIABILITY_LEVELS[1][0]
 WELL_IDENTIFIED = IDENTIFIABILITY_LEVELS[2][0]
 
 _PRIOR_DRAWS = 20_000
+
+#: The columns of :func:`parameter_contraction`.
+_COLUMNS = (
+    "parameter",
+    "phi",
+    "unit",
+    "scale",
+    "median",
+    "prior_sd",
+    "posterior_sd",
+    "contraction",
+    "verdict",
+    "unidentified",
+)
 
 
 def _log_scale(prior) -> bool:
@@ -104,8 +118,9 @@ def parameter_contraction(
     pandas.DataFrame
         One row per parameter and volume fraction: ``parameter``, ``phi``, ``unit``,
         ``scale`` (``log`` or ``linear``), ``median`` [the parameter's unit], ``prior_sd``
-        and ``posterior_sd`` (in the scale), ``contraction`` and ``unidentified``
-        (contraction below 0.5).
+        and ``posterior_sd`` (in the scale), ``contraction``, ``verdict``
+        (:data:`granbayes.stats.IDENTIFIABILITY_LEVELS`) and ``unidentified`` (contraction
+        below 0.5).
 
     Raises
     ------
@@ -121,33 +136,17 @@ def parameter_contraction(
             f"parameter(s) {unknown}: the law {'+'.join(s.settings.terms)} has "
             f"{', '.join(s.parameters)}"
         )
-    post = s.datatree["posterior"]
-    n_total = post.sizes["chain"] * post.sizes["draw"]
-    everything = np.arange(n_total)
-    rows = []
-    for name in names:
-        prior = s.priors[name]
-        prior_sd = _prior_sd(prior, rng)
-        for phi in s.phis:
-            theta = _target_draws(s, name, float(phi), everything)
-            theta = theta[np.isfinite(theta)]
-            sd = float(np.std(theta, ddof=1))
-            natural = np.exp(theta) if _log_scale(prior) else theta
-            contraction = 1.0 - sd**2 / prior_sd**2
-            rows.append(
-                {
-                    "parameter": name,
-                    "phi": float(phi),
-                    "unit": prior.unit,
-                    "scale": "log" if _log_scale(prior) else "linear",
-                    "median": float(np.median(natural)),
-                    "prior_sd": prior_sd,
-                    "posterior_sd": sd,
-                    "contraction": contraction,
-                    "unidentified": bool(contraction < UNIDENTIFIED),
-                }
-            )
-    return pd.DataFrame(rows)
+    prior_sd = {name: _prior_sd(s.priors[name], rng) for name in names}
+    table = identifiability_table(s.datatree, names, prior_sd=prior_sd)
+    medians = [
+        float(np.nanmedian(s.datatree["posterior"][name].sel(phi=phi).values))
+        for name, phi in zip(table["parameter"], table["phi"], strict=True)
+    ]
+    return table.assign(
+        unit=[s.priors[name].unit for name in table["parameter"]],
+        median=medians,
+        unidentified=table["contraction"] < UNIDENTIFIED,
+    )[[*_COLUMNS]]
 
 
 @dataclass(frozen=True)

@@ -61,6 +61,22 @@ def observed_jumps(dt: xr.DataTree) -> pd.DataFrame:
     return frame
 
 
+def _pure_error(frame: pd.DataFrame, keys: Sequence[str]) -> dict[float, tuple[float, float]]:
+    """Pure-error variance [mm^2] and its degrees of freedom at each volume fraction.
+
+    The spread of repeated jumps about their cell's mean, pooled over the cells of a volume
+    fraction (``keys``: the cell keys other than ``phi``; ``frame`` has ``phi`` and the
+    heights ``y`` [mm]). ``(nan, 0.0)`` where no cell has a repeat.
+    """
+    pooled = {}
+    for phi, g in frame.groupby("phi", sort=True):
+        cells = g.groupby(list(keys))["y"]
+        dof = float((cells.size() - 1).sum())
+        ss = float(((g["y"] - cells.transform("mean")) ** 2).sum())
+        pooled[phi] = (ss / dof, dof) if dof > 0 else (math.nan, 0.0)
+    return pooled
+
+
 def residual_table(dt: xr.DataTree) -> pd.DataFrame:
     """Residuals of a fitted law per cell of repeated jumps, with significance.
 
@@ -100,12 +116,7 @@ def residual_table(dt: xr.DataTree) -> pd.DataFrame:
     cells["phi"] = cells["phi"].astype(float)
     cells["y"] = y
     grouped = cells.groupby(keys, sort=True)
-    cells["dev2"] = (cells["y"] - grouped["y"].transform("mean")) ** 2
-    cells["dof"] = grouped["y"].transform("size") - 1
-    pooled = {}
-    for phi, g in cells.groupby("phi"):
-        dof = float(g.groupby(keys)["dof"].first().sum())
-        pooled[phi] = (float(g["dev2"].sum()) / dof, dof) if dof > 0 else (np.nan, 0.0)
+    pooled = _pure_error(cells, [k for k in keys if k != "phi"])
     rows = []
     for key, idx in grouped.indices.items():
         idx = np.asarray(idx)
@@ -236,17 +247,16 @@ def lack_of_fit(dt: xr.DataTree, *, n_null: int = 200_000, rng: int = 0) -> dict
     runs = json.loads(dt.attrs.get("runs", "[]"))
     n_cells_total = frame.groupby(["phi", *keys]).ngroups
     rows = []
+    pure = _pure_error(frame, keys)
     for phi, g in frame.groupby("phi", sort=True):
-        cells = g.groupby(keys, dropna=False)
+        cells = g.groupby(keys)
         n = cells["y"].size()
-        dof_pure = float((n - 1).sum())
+        s2, dof_pure = pure[phi]
         per_phi = [r["label"] for r in runs if r["label"] == f"phi={phi:g}"]
         if per_phi:
             p = float(coords[per_phi[0]])
         else:  # one run for every volume fraction: its coordinates spread over the cells
             p = float(sum(coords.values())) * len(n) / max(n_cells_total, 1)
-        ss_pure = float(((g["y"] - cells["y"].transform("mean")) ** 2).sum())
-        s2 = ss_pure / dof_pure if dof_pure > 0 else math.nan
         ss_lack = float((n * (cells["y"].mean() - cells["sim"].mean()) ** 2).sum())
         rows.append(
             {

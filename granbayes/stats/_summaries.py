@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import arviz as az
 import numpy as np
@@ -182,7 +182,12 @@ def _n_ensembles(dt: xr.DataTree) -> int | None:
     return int(n_ens)
 
 
-def identifiability_table(dt: xr.DataTree, var_names: Sequence[str] | None = None) -> pd.DataFrame:
+def identifiability_table(
+    dt: xr.DataTree,
+    var_names: Sequence[str] | None = None,
+    *,
+    prior_sd: Mapping[str, float] | None = None,
+) -> pd.DataFrame:
     """What the data determine: posterior-to-prior contraction per parameter and phi.
 
     The contraction ``1 - var_post / var_prior`` (Schad, Betancourt & Vasishth 2021) is 0
@@ -195,10 +200,14 @@ def identifiability_table(dt: xr.DataTree, var_names: Sequence[str] | None = Non
     Parameters
     ----------
     dt : xarray.DataTree
-        A fit with ``prior`` and ``posterior`` groups (``FitSettings.n_prior_draws > 0``)
-        and its ``priors`` attribute.
+        A fit with a ``posterior`` group and its ``priors`` attribute, and a ``prior``
+        group (``FitSettings.n_prior_draws > 0``) unless ``prior_sd`` gives every
+        parameter's prior SD.
     var_names : sequence of str, optional
         Parameters (default: the fit's force parameters and ``sigma_mm``).
+    prior_sd : mapping of str to float, optional
+        The prior SD of parameters, in the scale above, taken instead of the SD of the
+        ``prior`` group's draws (for fits stored without prior draws).
 
     Returns
     -------
@@ -206,29 +215,37 @@ def identifiability_table(dt: xr.DataTree, var_names: Sequence[str] | None = Non
         One row per parameter and volume fraction: ``parameter``, ``phi``, ``scale``
         (``log`` or ``linear``), ``prior_sd`` and ``posterior_sd`` (in that scale),
         ``contraction`` and ``verdict`` (:data:`IDENTIFIABILITY_LEVELS`). Empty if the fit
-        stored no prior draws.
+        stored no prior draws and ``prior_sd`` gives none.
     """
     columns = ["parameter", "phi", "scale", "prior_sd", "posterior_sd", "contraction", "verdict"]
-    if "prior" not in dt.children:
+    prior_sd = dict(prior_sd or {})
+    if "prior" not in dt.children and not prior_sd:
         return pd.DataFrame(columns=columns)
     priors = json.loads(dt.attrs["priors"])
     if var_names is None:
         var_names = [*json.loads(dt.attrs["parameters"]), "sigma_mm"]
-    prior, post = dt["prior"].to_dataset(), dt["posterior"].to_dataset()
+    post = dt["posterior"].to_dataset()
+    prior = dt["prior"].to_dataset() if "prior" in dt.children else xr.Dataset()
     rows = []
     for name in var_names:
-        if name not in prior or name not in post:
+        if name not in post or (name not in prior_sd and name not in prior):
             continue
         log = name in priors and priors[name]["dist"] in ("loguniform", "lognormal")
         for phi in post["phi"].values:
-            a = prior[name].sel(phi=phi).values.ravel()
             b = post[name].sel(phi=phi).values.ravel()
-            a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+            b = b[np.isfinite(b)]
             if log:
-                a, b = np.log(a[a > 0]), np.log(b[b > 0])
-            if a.size < 2 or b.size < 2:
+                b = np.log(b[b > 0])
+            if name in prior_sd:
+                var_prior = float(prior_sd[name]) ** 2
+            else:
+                a = prior[name].sel(phi=phi).values.ravel()
+                a = a[np.isfinite(a)]
+                a = np.log(a[a > 0]) if log else a
+                var_prior = float(np.var(a, ddof=1)) if a.size >= 2 else math.nan
+            if b.size < 2 or not var_prior == var_prior:
                 continue
-            var_prior, var_post = float(np.var(a, ddof=1)), float(np.var(b, ddof=1))
+            var_post = float(np.var(b, ddof=1))
             c = 1.0 - var_post / var_prior if var_prior > 0 else float("nan")
             verdict = next((t for bound, t in IDENTIFIABILITY_LEVELS if c < bound), "undetermined")
             rows.append(
