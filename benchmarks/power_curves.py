@@ -13,6 +13,12 @@ its design, the effect's size in its own unit and in the heights, the verdict),
 intervals; the sizes at 50% and 90% detection from a logistic fit on the effect's
 signal-to-noise ratio and on its own parameter) and ``power.png`` (the curves).
 
+With ``--tracked`` every case also films some of its jumps (``POWER_TRACKING``: the single
+jump and the stutter at each volume fraction, 1000 frames/s, the reference lab's frame
+noise) and ``diagnose`` fits the heights and tracked jumps jointly: the same cases, the
+same heights (paired with the heights-only study case by case); default OUT
+``benchmarks/results/power_tracked``.
+
 Detected means the study's "right" (``granbayes.calibration.outcome``): for a library term
 ``extended`` with exactly that term; for an effect outside the library ``misfit_remains``
 or a law as good as the truth on a fresh replicate (there, "detected" is "not misled").
@@ -20,8 +26,8 @@ or a law as good as the truth on a fresh replicate (there, "detected" is "not mi
 Usage::
 
     python benchmarks/power_curves.py [--kinds drag,viscous,...] [--per-size 10]
-        [--out DIR] [--seed S] [--workers N | --scheduler ADDRESS] [--resume]
-        [--summarize-only]
+        [--tracked] [--out DIR] [--seed S] [--workers N | --scheduler ADDRESS]
+        [--resume] [--summarize-only]
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ from granbayes import __version__
 from granbayes.calibration import (
     POWER_DESIGN,
     POWER_SIZES,
+    POWER_TRACKING,
     STEP_BUDGET,
     detection_sizes,
     power_case,
@@ -59,19 +66,21 @@ HERE = Path(__file__).resolve().parent
 SEED = 20261128
 
 
-def tasks(kinds: list[str], per_size: int, seed: int) -> list[Task]:
+def tasks(kinds: list[str], per_size: int, seed: int, tracked: bool = False) -> list[Task]:
     """One task per kind, size and replicate; seeds spawned per (kind, size).
 
     Interleaved replicate by replicate (replicate 0 of every kind and size first), so a
     study stopped part-way has every point of every curve covered about equally.
+    ``tracked``: the same cases with filmed jumps (``POWER_TRACKING``).
     """
+    kwargs = {"tracking": POWER_TRACKING} if tracked else {}
     cells = []
     for kind in kinds:
         for j, size in enumerate(POWER_SIZES[kind]):
             seeds = spawn_seeds(seed + 1000 * list(POWER_SIZES).index(kind) + j, per_size)
             cells.append(
                 [
-                    Task(f"{kind}-size{j}-{i:03d}", power_case, (kind, size, i), seed=s)
+                    Task(f"{kind}-size{j}-{i:03d}", power_case, (kind, size, i), kwargs, seed=s)
                     for i, s in enumerate(seeds)
                 ]
             )
@@ -101,7 +110,9 @@ def figure(table: pd.DataFrame) -> Figure:
     return fig
 
 
-def write_summary(out: Path, results: pd.DataFrame, seed: int, n_planned: int) -> None:
+def write_summary(
+    out: Path, results: pd.DataFrame, seed: int, n_planned: int, tracked: bool = False
+) -> None:
     """summary.md, summary.json and power.png from the tidy results."""
     table = power_table(results)
     by_snr = detection_sizes(results, "effect_snr")
@@ -113,6 +124,7 @@ def write_summary(out: Path, results: pd.DataFrame, seed: int, n_planned: int) -
         "n_cases": len(results),
         "n_planned": n_planned,
         "design": POWER_DESIGN,
+        "tracking": POWER_TRACKING if tracked else None,
         "sizes": POWER_SIZES,
         "step_budget": STEP_BUDGET,
         "per_size": table.to_dict("records"),
@@ -133,7 +145,15 @@ def write_summary(out: Path, results: pd.DataFrame, seed: int, n_planned: int) -
             else ""
         )
         + ". Designs like a lab's: 2-5 volume fractions, 1-2 frequencies, 2-5 trials, "
-        "scatter 1.5-5 mm, drawn per case. Detected: a library term named alone or with a "
+        "scatter 1.5-5 mm, drawn per case"
+        + (
+            "; **with tracked jumps** (`POWER_TRACKING`: the single jump and the stutter "
+            "filmed at every volume fraction, 1000 frames/s, 0.25 mm frame noise), fitted "
+            "jointly with the heights"
+            if tracked
+            else ""
+        )
+        + ". Detected: a library term named alone or with a "
         "tie (`extended` with exactly it); an effect outside the library not blamed on a "
         "term (`misfit_remains`, or a law as good as the truth on a fresh replicate). "
         "`effect_rms_mm`: the RMS height change of the effect over cells; `effect_snr`: "
@@ -168,14 +188,20 @@ def main(argv: list[str] | None = None) -> int:
     add_campaign_options(parser, HERE / "results" / "power", list(POWER_SIZES))
     parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument("--per-size", type=int, default=10, help="cases per size (10)")
+    parser.add_argument(
+        "--tracked", action="store_true", help="film some jumps too (POWER_TRACKING)"
+    )
     args = parser.parse_args(argv)
+    if args.tracked and args.out == HERE / "results" / "power":
+        args.out = HERE / "results" / "power_tracked"
     kinds = chosen_kinds(args.kinds, list(POWER_SIZES))
     if kinds is None:
         return 2
-    todo = tasks(kinds, args.per_size, args.seed)
+    todo = tasks(kinds, args.per_size, args.seed, args.tracked)
     if args.summarize_only:
         return summarize_finished(
-            args.out, lambda results: write_summary(args.out, results, args.seed, len(todo))
+            args.out,
+            lambda results: write_summary(args.out, results, args.seed, len(todo), args.tracked),
         )
     description = {
         "kind": "granbayes.calibration.power_case",
@@ -183,8 +209,10 @@ def main(argv: list[str] | None = None) -> int:
         "sizes": {k: POWER_SIZES[k] for k in kinds},
         "design": POWER_DESIGN,
     }
+    if args.tracked:
+        description["tracking"] = POWER_TRACKING
     result = run_study(todo, args, description)
-    write_summary(result.folder, result.results, args.seed, len(todo))
+    write_summary(result.folder, result.results, args.seed, len(todo), args.tracked)
     print((result.folder / "summary.md").read_text())
     return 0 if result.n_failed == 0 else 1
 

@@ -54,10 +54,12 @@ from scipy import stats
 from ._criticism import Candidate, DiagnoseSettings, DiagnosisRecord, diagnose, distinguished
 from ._deprecated import renamed_keyword
 from ._experiment import Experiment, Robot
+from ._measurements import Measurements
 from ._sampler import ProgressInfo
 from .commands import COMMAND_NAMES, COMMANDS, CommandSettings
 from .design import candidate_settings, design_jumps, design_parameters
 from .forces import TERMS, terms_of
+from .kinds import measurements
 from .testing import (
     DepthDependentDrag,
     Effect,
@@ -83,6 +85,7 @@ __all__ = [
     "OverBudget",
     "POWER_DESIGN",
     "POWER_SIZES",
+    "POWER_TRACKING",
     "StepCounter",
     "MISCALIBRATION",
     "diagnose_case",
@@ -101,6 +104,7 @@ __all__ = [
     "lack_of_fit_case",
     "fresh_deficit",
     "make_case",
+    "tracked_frames",
     "named_terms",
     "outcome",
     "power_case",
@@ -188,6 +192,10 @@ class Case:
         What was drawn: robot, noise, design, k law and effect size.
     true_height_mm : ndarray
         The noise-free heights of the table's rows [mm] (from the oracle).
+    trajectories : pandas.DataFrame or None
+        The tracked jumps' frames (``load_trajectories`` columns, validated as a user's
+        file is), when the case was made with a tracking design (:data:`POWER_TRACKING`);
+        else ``None``.
     """
 
     kind: str
@@ -195,6 +203,13 @@ class Case:
     table: pd.DataFrame
     truth: dict
     true_height_mm: np.ndarray
+    trajectories: pd.DataFrame | None = None
+
+    def measurements(self) -> pd.DataFrame | Measurements:
+        """What ``diagnose`` is given: the jumps, with the tracked jumps where there are."""
+        if self.trajectories is None:
+            return self.table
+        return measurements({"heights": self.table, "trajectories": self.trajectories})
 
 
 def _k_law(rng: np.random.Generator) -> tuple[float, float, float]:
@@ -304,6 +319,7 @@ def make_case(
     *,
     size: float | None = None,
     design: Mapping[str, tuple[int, int] | tuple[float, float]] | None = None,
+    tracking: Mapping[str, Any] | None = None,
 ) -> Case:
     """A SYNTHETIC data set of the given kind (module docstring), drawn from ``seed``.
 
@@ -331,6 +347,10 @@ def make_case(
         Ranges of the design instead of the study's (two volume fractions, two
         frequencies): ``n_phis``, ``n_freqs`` and ``trials`` (inclusive integer ranges)
         and ``sigma_mm`` (:data:`POWER_DESIGN`).
+    tracking : mapping, optional
+        Film some jumps as well (:data:`POWER_TRACKING`'s keys): the case then has
+        ``trajectories`` (:func:`tracked_frames`). The jump heights are the same as
+        without it, bit for bit: the frames draw from a stream of their own.
 
     Returns
     -------
@@ -368,7 +388,125 @@ def make_case(
         f" replicate={replicate}" if replicate else ""
     )
     true_height = table["true_height_mm"].to_numpy(dtype=float)
-    return Case(kind, experiment, table.drop(columns="true_height_mm"), truth, true_height)
+    frames = None
+    if tracking is not None:
+        frames = tracked_frames(kind, truth, experiment, tracking, seed=[seed, replicate, 1])
+        frames["source"] = table["source"].iloc[0]
+        frames = _validated_frames(frames, experiment)
+    return Case(kind, experiment, table.drop(columns="true_height_mm"), truth, true_height, frames)
+
+
+def tracked_frames(
+    kind: str,
+    truth: Mapping[str, Any],
+    experiment: Experiment,
+    tracking: Mapping[str, Any],
+    *,
+    seed: int | Sequence[int],
+) -> pd.DataFrame:
+    """The frames of a case's filmed jumps, made by the oracle (SYNTHETIC).
+
+    At every volume fraction of ``truth``, trial 1 of each of ``tracking["commands"]`` at
+    the first frequency is filmed at ``fps`` frames/s from ``from_s`` [s] to ``after_s``
+    [s] past the end of its command (every command's jump has landed by then at the
+    study's heights). The frames are the oracle's foot height and rod displacement
+    (:func:`granbayes.testing.replicate_measurements`, with the case's out-of-library
+    physics) at the robot's times ``t + delta``, ``delta`` a clock offset uniform within
+    ``offset_frames`` frames (the window the fit integrates over is this one plus half a
+    grid step), plus Ornstein-Uhlenbeck noise of ``frame_sd_mm`` (both coordinates) and
+    correlation time ``frame_tau_ms``.
+
+    Parameters
+    ----------
+    kind : str
+        The case's kind (one of :data:`CASE_KINDS` other than the earlier
+        ``pause_stiffening``/``rate_stiffening``, which rescale ``k`` per cell and are not
+        forces a trajectory could carry).
+    truth : mapping
+        The case's truth (:attr:`Case.truth`).
+    experiment : Experiment
+        Its robot and command defaults.
+    tracking : mapping
+        ``commands``, ``fps`` [1/s], ``from_s`` [s], ``after_s`` [s], ``frame_sd_mm``
+        [mm], ``frame_tau_ms`` [ms] and ``offset_frames`` (:data:`POWER_TRACKING`).
+    seed : int or sequence of int
+        Seed of the clock offsets and the frame noise.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``trajectories.csv``'s columns (``jump``, ``phi``, ``command``, ``trial``,
+        ``freq_hz``, ``amplitude_mm``, ``t_s``, ``x_foot_mm``, ``x_rod_mm``) and the truth
+        (``true_offset_s``, ``true_x_foot_mm``, ``true_x_rod_mm``).
+
+    Raises
+    ------
+    ValueError
+        For a kind that rescales ``k`` per cell.
+    """
+    from .testing import replicate_measurements
+
+    if kind in OUT_OF_LIBRARY and kind not in _PHYSICS:
+        raise ValueError(f"{kind!r} rescales k per cell: it is no force a trajectory can carry")
+    k0, k1, k2 = truth["k_law"]
+    freq = float(truth["freqs_hz"][0])
+    amplitude_mm = float(truth["amplitude_mm"])
+    settings = CommandSettings(amplitude_mm=amplitude_mm, freq_hz=freq)
+    dt = 1.0 / float(tracking["fps"])
+    rows, laws, windows = [], {}, {}
+    for phi in truth["phis"]:
+        x = phi - _PHI_C
+        laws[phi] = {
+            "k": k0 + k1 * x + k2 * x * x,
+            **truth["effect"],
+            "frame_sd_foot_mm": float(tracking["frame_sd_mm"]),
+            "frame_sd_rod_mm": float(tracking["frame_sd_mm"]),
+            "frame_tau_ms": float(tracking["frame_tau_ms"]),
+        }
+        for command in tracking["commands"]:
+            end = COMMANDS[command].program(settings).t_end
+            n = int(np.floor((end + float(tracking["after_s"]) - tracking["from_s"]) / dt)) + 1
+            jump = f"phi={phi:g} {command} {freq:g}Hz"
+            windows[jump] = float(tracking["offset_frames"]) * dt
+            for t in float(tracking["from_s"]) + dt * np.arange(n):
+                rows.append(
+                    {
+                        "jump": jump,
+                        "phi": phi,
+                        "command": command,
+                        "trial": 1,
+                        "freq_hz": freq,
+                        "amplitude_mm": amplitude_mm,
+                        "t_s": round(float(t), 9),
+                        "x_foot_mm": np.nan,
+                        "x_rod_mm": np.nan,
+                    }
+                )
+    strength = truth["out_of_library_strength"]
+    physics = (_PHYSICS[kind](strength),) if kind in _PHYSICS else None
+    out = replicate_measurements(
+        experiment,
+        {"trajectories": pd.DataFrame(rows)},
+        laws,
+        rng=np.random.default_rng(seed),
+        offset_window_s=windows,
+        effects=physics,
+    )
+    return out["trajectories"]
+
+
+def _validated_frames(frames: pd.DataFrame, experiment: Experiment) -> pd.DataFrame:
+    """Frames read back as a user's ``trajectories.csv`` is (the same checks and columns)."""
+    import tempfile
+    from pathlib import Path
+
+    from ._measurements import load_trajectories
+
+    public = [c for c in frames.columns if not c.startswith("true_")]
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "trajectories.csv"
+        frames[public].to_csv(path, index=False)
+        return load_trajectories(path, experiment)
 
 
 def _cell_heights(
@@ -680,7 +818,7 @@ def _diagnosed(
     try:
         d = diagnose(
             case.experiment,
-            case.table,
+            case.measurements(),
             settings,
             seed=diag_seed,
             log=lambda *a, **k: None,
@@ -1508,6 +1646,21 @@ POWER_DESIGN: dict[str, tuple[int, int] | tuple[float, float]] = {
     "trials": (2, 5),
     "sigma_mm": (1.5, 5.0),
 }
+#: Filmed jumps of the power curves' cases with tracking (``power_case(tracking=...)``):
+#: at every volume fraction, trial 1 of the single jump and of the stutter at the first
+#: frequency, at 1000 frames/s from 10 ms before the command to 150 ms after its end (the
+#: flight and the landing), with the noise of the shipped reference lab (0.25 mm per
+#: coordinate, correlation 0.5 between frames: tau = 1 ms / ln 2) and a clock offset of up
+#: to 5 frames.
+POWER_TRACKING: dict[str, Any] = {
+    "commands": ("single", "stutter"),
+    "fps": 1000.0,
+    "from_s": -0.01,
+    "after_s": 0.15,
+    "frame_sd_mm": 0.25,
+    "frame_tau_ms": 1.0 / float(np.log(2.0)),
+    "offset_frames": 5,
+}
 
 
 def power_case(
@@ -1518,13 +1671,17 @@ def power_case(
     *,
     seed: int,
     step_budget: int | None = STEP_BUDGET,
+    tracking: Mapping[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Campaign task of the power curves: a case with its effect at ``size``, diagnosed.
 
     The case is drawn like the study's (:func:`make_case`) but on a lab-like design
     (:data:`POWER_DESIGN`) and with the effect's value fixed; the row is
     :func:`diagnose_case`'s with ``size`` and the effect's size in the heights
-    (:func:`effect_size`).
+    (:func:`effect_size`). With ``tracking`` (:data:`POWER_TRACKING`) some jumps are
+    filmed too and ``diagnose`` fits heights and tracked jumps jointly; the jump heights
+    are those of the same case without tracking, so the two curves are paired case by
+    case. The fresh replicate that judges an out-of-library case is of the heights.
 
     Parameters
     ----------
@@ -1540,18 +1697,24 @@ def power_case(
         The task's seed: the case is drawn from it, ``diagnose`` gets a spawned one.
     step_budget : int, optional
         As :func:`diagnose_case`'s.
+    tracking : mapping, optional
+        Film some jumps (:func:`tracked_frames`).
 
     Returns
     -------
     list of dict
-        One row.
+        One row (with tracking: ``n_tracked`` and ``n_frames`` as well).
     """
     if kind == "null":
         raise ValueError("a power curve needs an effect: kind 'null' has none")
     case_seed, diag_seed = (
         int(c.generate_state(1)[0]) for c in np.random.SeedSequence(seed).spawn(2)
     )
-    case = make_case(kind, case_seed, size=size, design=POWER_DESIGN)
+    case = make_case(kind, case_seed, size=size, design=POWER_DESIGN, tracking=tracking)
+    extra: dict[str, Any] = {"size": float(size), **effect_size(case)}
+    if case.trajectories is not None:
+        extra["n_tracked"] = int(case.trajectories["jump"].nunique())
+        extra["n_frames"] = len(case.trajectories)
     return _diagnosed(
         case,
         index,
@@ -1559,7 +1722,7 @@ def power_case(
         case_seed,
         diag_seed,
         step_budget,
-        {"size": float(size), **effect_size(case)},
+        extra,
         size=size,
         design=POWER_DESIGN,
     )

@@ -27,7 +27,7 @@ the likelihood's code.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -35,6 +35,7 @@ import pandas as pd
 
 from .._experiment import Experiment
 from ..commands import SETTINGS, CommandSettings, build_command
+from ._effects import Effect, resolve_effects
 from ._lab import UNCERTAIN_KEYS, _map, _Task
 from ._oracle import intrusion_force_scipy
 
@@ -97,6 +98,7 @@ def replicate_measurements(
     offset_window_s: Mapping[Any, float] | None = None,
     noise: str = "normal",
     nu: float = 5.0,
+    effects: Effect | Iterable[Effect] | None = None,
     executor: Any = None,
     rtol: float = 1e-9,
     atol: float = 1e-12,
@@ -129,6 +131,10 @@ def replicate_measurements(
         Scatter of the heights.
     nu : float
         Student-t degrees of freedom.
+    effects : effect or sequence of effects, optional
+        Out-of-library ground physics of the truth (:mod:`granbayes.testing`'s effects),
+        in every simulated jump, tracked jump and intrusion test; ``None``: the library
+        model.
     executor : optional
         Where the oracle runs (``None``: here; a ``dask.distributed.Client`` or a
         ``map``-like callable, as :func:`~granbayes.testing.synthetic_lab_data`).
@@ -150,6 +156,7 @@ def replicate_measurements(
         tracked jump's offset window is missing.
     """
     truth = {float(phi): dict(values) for phi, values in truth.items()}
+    physics = tuple(e for e in vars(resolve_effects(effects)).values() if e is not None)
 
     def at(phi: float) -> tuple[dict[str, float], Experiment, float, dict[str, float]]:
         for key, values in truth.items():
@@ -174,7 +181,9 @@ def replicate_measurements(
         settings["amplitude_mm"] *= factor
         exp = exp.replace(**settings)
         build_command(command, exp.command)  # refuses an unknown command here
-        tasks.append(_Task(command, phi, tuple(sorted(law.items())), exp, (), times, rtol, atol))
+        tasks.append(
+            _Task(command, phi, tuple(sorted(law.items())), exp, physics, times, rtol, atol)
+        )
         return len(tasks) - 1
 
     heights = tables.get("heights")
@@ -243,7 +252,12 @@ def replicate_measurements(
                 exp = exp.replace(foot_radius=float(radius))
             pos = table.index.get_indexer(rows.index)
             true_f[pos] = intrusion_force_scipy(
-                phi, law, rows["depth_mm"].to_numpy(float), float(rows["speed_mm_s"].iloc[0]), exp
+                phi,
+                law,
+                rows["depth_mm"].to_numpy(float),
+                float(rows["speed_mm_s"].iloc[0]),
+                exp,
+                effects=physics,
             )
         sd = np.array([need(at(p)[3], "force_sd_N", p) for p in table["phi"].to_numpy(float)])
         table["force_N"] = true_f + sd * rng.standard_normal(len(table))
