@@ -55,6 +55,7 @@ from ._criticism import Candidate, DiagnoseSettings, DiagnosisRecord, diagnose, 
 from ._deprecated import renamed_keyword
 from ._experiment import Experiment, Robot
 from ._measurements import Measurements
+from ._priors import default_priors
 from ._sampler import ProgressInfo
 from .commands import COMMAND_NAMES, COMMANDS, CommandSettings
 from .design import candidate_settings, design_jumps, design_parameters
@@ -86,6 +87,7 @@ __all__ = [
     "POWER_DESIGN",
     "POWER_SIZES",
     "POWER_TRACKING",
+    "K_FLOOR",
     "StepCounter",
     "MISCALIBRATION",
     "diagnose_case",
@@ -212,13 +214,27 @@ class Case:
         return measurements({"heights": self.table, "trajectories": self.trajectories})
 
 
-def _k_law(rng: np.random.Generator) -> tuple[float, float, float]:
-    """Coefficients of ``k(phi) = k0 + k1 x + k2 x^2`` [N/m], ``x = phi - phi_c``."""
-    return (
+#: The smallest true ``k`` [N/m] of a case at any of its volume fractions: twice the lower
+#: bound of ``k``'s default prior. The drawn law can dip far lower at the loosest packings
+#: (to 106 N/m, and below zero in principle): a truth outside the prior's support, which
+#: no fit can reach, so its misfit says nothing about the rule (the study of 2026-11-27
+#: found its only false discovery and one miss there).
+K_FLOOR = 2.0 * default_priors()["k"].lower
+
+
+def _k_law(rng: np.random.Generator, phis: Sequence[float]) -> tuple[float, float, float]:
+    """Coefficients of ``k(phi) = k0 + k1 x + k2 x^2`` [N/m], ``x = phi - phi_c``.
+
+    ``k0`` is raised where needed so that ``k >= K_FLOOR`` at every one of ``phis`` (the
+    draws are unchanged, so every case whose law stays above the floor is as before).
+    """
+    k0, k1, k2 = (
         float(rng.uniform(2500.0, 5000.0)),
         float(rng.uniform(0.8e5, 1.6e5)),
         float(rng.uniform(0.5e6, 2.0e6)),
     )
+    lowest = min(k0 + k1 * (p - _PHI_C) + k2 * (p - _PHI_C) ** 2 for p in phis)
+    return k0 + max(0.0, K_FLOOR - lowest), k1, k2
 
 
 def _draw(
@@ -262,7 +278,7 @@ def _draw(
         sigma_mm = float(rng.uniform(*design["sigma_mm"]))
         if trials is None:
             trials = int(rng.integers(design["trials"][0], design["trials"][1] + 1))
-    k0, k1, k2 = _k_law(rng)
+    k0, k1, k2 = _k_law(rng, phis)
     effect: dict[str, float] = {}
     strength = 0.0
     if kind in EFFECT_RANGES:
@@ -1024,10 +1040,11 @@ def diagnose_miscalibrated(
         int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(2)
     )
     rng = np.random.default_rng(data_seed)
-    k0, k1, k2 = _k_law(rng)
+    phis = (0.592, 0.602, 0.612, 0.622, 0.632)
+    k0, k1, k2 = _k_law(rng, phis)
     sigma_mm = float(rng.uniform(1.0, 2.0))
     design = LabDesign(
-        phis=(0.592, 0.602, 0.612, 0.622, 0.632),
+        phis=phis,
         commands=COMMAND_NAMES,
         freqs_hz=(10.0, 12.0),
         trials=trials,
