@@ -1450,7 +1450,8 @@ def _screen_searches(problems: Sequence[tuple], n_rounds: int) -> list[float]:
 
     Per problem ``(model, warm, new, rng)``: a (1+12) evolution strategy from the parent's
     best draws with the new coordinates at "off" and at three levels across their prior
-    ranges (step size by success), then Nelder-Mead from its best point (see ``screen``).
+    ranges (a level below an "off" value inside the range is a start of its own), step
+    size by success, then Nelder-Mead from its best point (see ``screen``).
     """
     if not problems:
         return []
@@ -1462,16 +1463,28 @@ def _screen_searches(problems: Sequence[tuple], n_rounds: int) -> list[float]:
         return [np.where(np.isfinite(ev.log_prob), ev.log_lik.sum(axis=1), -np.inf) for ev in evs]
 
     f_parent = [float(np.max(v)) for v in log_lik([p[1] for p in problems])]
-    xs, fs, scales, bounds = [], [], [], []
-    for model, warm, new, _ in problems:
+    xs, fs, scales, bounds, n_main, rngs_below = [], [], [], [], [], []
+    for model, warm, new, rng in problems:
         lo, hi = model.bounds_u.T
         width = hi - lo
-        starts = []
+        starts, below = [], []
         for level in (0.0, 0.1, 0.3, 0.6):
             x = warm[:2].copy()
             x[:, new] = np.maximum(x[:, new], lo[new] + level * width[new])
             starts.append(x)
-        xs.append(np.concatenate(starts))
+            # a new parameter whose "off" value lies inside its range (unloading's r_unload
+            # = 20 in [1, 200]: the effect grows as r falls) starts at the level too, below
+            # "off", where the search from above can stall in a local optimum
+            lower = new & (warm[0] > lo + level * width + 1e-9 * width)
+            if level > 0.0 and lower.any():
+                y = warm[:2].copy()
+                y[:, lower] = lo[lower] + level * width[lower]
+                below.append(y)
+        n_main.append(sum(len(x) for x in starts))
+        xs.append(np.concatenate(starts + below))
+        # the starts below "off" draw their steps from a stream of their own, so that the
+        # other starts follow the very same path whether or not there are any
+        rngs_below.append(rng.spawn(1)[0] if below else None)
         spread = np.std(warm, axis=0) if len(warm) > 1 else np.zeros(model.ndim)
         base = np.where(new, 0.1 * width, np.maximum(spread, 1e-3 * width))
         scales.append(np.tile(base, (len(xs[-1]), 1)))
@@ -1480,10 +1493,13 @@ def _screen_searches(problems: Sequence[tuple], n_rounds: int) -> list[float]:
     n_prop = 12
     for _ in range(n_rounds):  # (1+12) evolution strategy, step size by success
         props = []
-        for (model, _, _, rng), x, scale, (lo, hi, _) in zip(
-            problems, xs, scales, bounds, strict=True
+        for (model, _, _, rng), x, scale, (lo, hi, _), m, extra in zip(
+            problems, xs, scales, bounds, n_main, rngs_below, strict=True
         ):
-            step = rng.standard_normal((len(x), n_prop, model.ndim))
+            step = rng.standard_normal((m, n_prop, model.ndim))
+            if extra is not None:
+                more = extra.standard_normal((len(x) - m, n_prop, model.ndim))
+                step = np.concatenate([step, more])
             props.append(np.clip(x[:, None, :] + scale[:, None, :] * step, lo, hi))
         f_props = log_lik([p.reshape(-1, p.shape[-1]) for p in props])
         for i, (prop, fp) in enumerate(zip(props, f_props, strict=True)):

@@ -823,6 +823,26 @@ def test_screening_side_by_side_is_screening_one_by_one(drag_case) -> None:
     assert together == alone
 
 
+def test_screening_finds_a_strong_unloading_below_its_off_value() -> None:
+    """Unloading's "off" value (r_unload = 20) lies inside its prior range [1, 200], and a
+    strong unloading bed has r_unload of 2-4: below it. Searched only from "off" and above,
+    the screen stalled at +1.0 nats on this case of the verdict study (SYNTHETIC, oracle:
+    ``make_case("unloading", ...)``, r_unload = 2.67, the study of 2026-11-27's
+    ``unloading-009``) for 3 of these 6 search seeds, so the true term was screened out
+    and viscous + stiffening named instead; the others found +85.7. With starts below
+    "off" every one finds it (> 80 nats)."""
+    from granbayes._fitting import FitSettings, fit, screen
+    from granbayes.calibration import make_case
+
+    case = make_case("unloading", 2499784914)
+    assert case.truth["effect"]["r_unload"] == pytest.approx(2.671, abs=1e-3)
+    settings = FitSettings(terms=("depth",), sampler=DiagnoseSettings().sampler, n_threads=1)
+    parent = fit(case.experiment, case.table, settings, seed=3).datatree
+    unloading = FitSettings(terms=("depth", "unloading"), n_threads=1)
+    gains = [screen(case.experiment, case.table, unloading, parent, seed=s) for s in range(1, 7)]
+    assert min(gains) > 80.0, gains
+
+
 def test_a_screened_out_candidate_is_listed_not_fitted(tmp_path: Path) -> None:
     """Screening on: an absent term is screened out (no fit, null ELPD in diagnosis.json,
     "screened out" in the report); the hidden drag is fitted and added as before."""
