@@ -84,6 +84,8 @@ class FitBank:
         self.progress = progress
         self.fits: dict[tuple[str, ...], FitResult] = {}
         self.screens: dict[tuple[str, ...], float] = {}
+        #: The best point of each screened law's search (``screen_many``'s ``points``).
+        self.screen_points: dict[tuple[str, ...], dict[float, dict[str, float]]] = {}
         #: Wall time [s] spent per kind of work (``diagnosis.json``'s ``timing_s``).
         self.seconds: dict[str, float] = {
             "fits": 0.0,
@@ -134,6 +136,10 @@ class FitBank:
             data_source=self.data_source,
             warm_start=warm,
             progress=self._progress(key, f" (rerun {attempt})" if attempt else ""),
+            # where the candidate was screened, its fit climbs from the screen's best point
+            # too: the warm start sits at the new parameters' "off" values, from which the
+            # climbs can end in a worse mode (fit's ``start_points``)
+            start_points=self.screen_points.get(key),
         )
 
     def get(self, terms: Sequence[str], parent: Sequence[str] | None = None) -> FitResult:
@@ -229,6 +235,7 @@ class FitBank:
         keys = [terms_of(t) for t in laws]
         todo = list(dict.fromkeys(k for k in keys if k not in self.screens))
         if todo:
+            found: list[dict[float, dict[str, float]]] = []
             with self._timed("screening"):
                 gains = screen_many(
                     self.experiment,
@@ -237,8 +244,10 @@ class FitBank:
                     self.fits[terms_of(parent)].datatree,
                     seeds=[self._law_seed(k, 99) for k in todo],
                     priors=self.priors,
+                    points=found,
                 )
             self.screens.update(zip(todo, gains, strict=True))
+            self.screen_points.update(zip(todo, found, strict=True))
         return [self.screens[k] for k in keys]
 
     def converged(self, key: tuple[str, ...]) -> bool:
