@@ -1486,15 +1486,15 @@ def screen_many(
             owner.append(c)
     gains, best = _screen_searches(problems, n_rounds)
     total = [0.0] * len(configs)
-    found: list[dict[float, dict[str, float]]] = [{} for _ in configs]
-    for c, g, (model, *_), u in zip(owner, gains, problems, best, strict=True):
+    for c, g in zip(owner, gains, strict=True):
         total[c] += g
-        found[c][float(model.phis[0])] = {
-            co.parameter: float(co.prior.to_value(np.asarray(u[j])))
-            for j, co in enumerate(model.coordinates)
-        }
     if points is not None:
-        points[:] = found
+        points[:] = [{} for _ in configs]
+        for c, (model, *_), u in zip(owner, problems, best, strict=True):
+            points[c][float(model.phis[0])] = {
+                co.parameter: float(co.prior.to_value(np.asarray(u[j])))
+                for j, co in enumerate(model.coordinates)
+            }
     return [float("nan") if c in failed else t for c, t in enumerate(total)]
 
 
