@@ -237,6 +237,13 @@ def _k_law(rng: np.random.Generator, phis: Sequence[float]) -> tuple[float, floa
     return k0 + max(0.0, K_FLOOR - lowest), k1, k2
 
 
+def _true_k(k_law: Sequence[float], phi: float) -> float:
+    """A case's true ``k`` [N/m] at ``phi``: ``k0 + k1 x + k2 x^2``, ``x = phi - phi_c``."""
+    k0, k1, k2 = k_law
+    x = phi - _PHI_C
+    return k0 + k1 * x + k2 * x * x
+
+
 def _draw(
     kind: str,
     seed: int,
@@ -464,16 +471,14 @@ def tracked_frames(
 
     if kind in OUT_OF_LIBRARY and kind not in _PHYSICS:
         raise ValueError(f"{kind!r} rescales k per cell: it is no force a trajectory can carry")
-    k0, k1, k2 = truth["k_law"]
     freq = float(truth["freqs_hz"][0])
     amplitude_mm = float(truth["amplitude_mm"])
     settings = CommandSettings(amplitude_mm=amplitude_mm, freq_hz=freq)
     dt = 1.0 / float(tracking["fps"])
     rows, laws, windows = [], {}, {}
     for phi in truth["phis"]:
-        x = phi - _PHI_C
         laws[phi] = {
-            "k": k0 + k1 * x + k2 * x * x,
+            "k": _true_k(truth["k_law"], phi),
             **truth["effect"],
             "frame_sd_foot_mm": float(tracking["frame_sd_mm"]),
             "frame_sd_rod_mm": float(tracking["frame_sd_mm"]),
@@ -536,7 +541,6 @@ def _cell_heights(
     and loses the depth dependence, the part of the effect the library has no term for and
     the size its power curve varies.
     """
-    k0, k1, k2 = truth["k_law"]
     keep_drag = kind == "depth_dependent_drag"
     effect = truth["effect"] if with_effect or keep_drag else {}
     strength = truth["out_of_library_strength"] if with_effect else 0.0
@@ -544,8 +548,7 @@ def _cell_heights(
     amplitude_mm = truth["amplitude_mm"]
     out = {}
     for phi in truth["phis"]:
-        x = phi - _PHI_C
-        k = k0 + k1 * x + k2 * x * x
+        k = _true_k(truth["k_law"], phi)
         for freq in truth["freqs_hz"]:
             settings = CommandSettings(amplitude_mm=amplitude_mm, freq_hz=freq)
             cell_exp = dataclasses.replace(experiment, command=settings)
@@ -1901,14 +1904,12 @@ def extra_jumps(case: Case, plan: pd.DataFrame, rng: np.random.Generator) -> pd.
     """
     if case.kind not in ("null", *LIBRARY_EFFECTS):
         raise ValueError(f"extra jumps of {case.kind!r}: only library truths are simulated")
-    k0, k1, k2 = case.truth["k_law"]
     exp = case.experiment
     rows = []
     for r in plan.itertuples():
         delay = exp.command.delay_ms if np.isnan(r.delay_ms) else float(r.delay_ms)
         settings = dataclasses.replace(exp.command, freq_hz=float(r.freq_hz), delay_ms=delay)
-        x = r.phi - _PHI_C
-        params = {"k": k0 + k1 * x + k2 * x * x, **case.truth["effect"]}
+        params = {"k": _true_k(case.truth["k_law"], r.phi), **case.truth["effect"]}
         height = simulate_height_scipy(
             r.command, r.phi, params, dataclasses.replace(exp, command=settings)
         )
