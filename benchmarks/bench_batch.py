@@ -34,11 +34,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import datetime
 import io
 import json
 import os
-import platform
 import resource
 import shutil
 import statistics
@@ -49,14 +47,16 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
-import numba
 import numpy as np
 import pandas as pd
+from _machine import machine_info, machine_markdown  # this folder
 
 import granbayes
 import granbayes._cli
 import granbayes._experiment
+import granbayes._measurements
 import granbayes._simulator
+import granbayes._tables
 from granbayes._experiment import Experiment
 from granbayes._simulator import build_rows, simulate, simulate_rows
 from granbayes.commands import COMMAND_NAMES
@@ -174,12 +174,12 @@ def phase_clock(phases: dict[str, float]) -> Iterator[None]:
     results' text) and ``text`` (``_CsvTable.to_text``); CPU seconds, summed per call.
     """
     targets = [
-        (granbayes._experiment, "_read_csv", "read"),
+        (granbayes._measurements, "_read_csv", "read"),
         (granbayes._cli, "_load_batch", "load"),
         (granbayes._cli, "simulate_table", "table"),
         (granbayes._simulator, "simulate_rows", "kernel"),
         (granbayes._cli, "_csv_numbers", "format"),
-        (granbayes._experiment._CsvTable, "to_text", "text"),
+        (granbayes._tables._CsvTable, "to_text", "text"),
     ]
     saved = []
     for owner, name, phase in targets:
@@ -332,28 +332,6 @@ def bench(n: int, seed: int, rounds: int, folder: Path) -> dict:
 
 # ----------------------------------------------------------------------------------------
 # report
-def machine_info() -> dict:
-    """Platform, CPU, library versions and date of the run."""
-    cpu = platform.processor()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if "model name" in line)
-    except (OSError, StopIteration):
-        pass
-    return {
-        "platform": platform.platform(),
-        "cpu": cpu,
-        "cpu_count": os.cpu_count(),
-        "numba_threads": numba.config.NUMBA_NUM_THREADS,
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "pandas": pd.__version__,
-        "numba": numba.__version__,
-        "granbayes": granbayes.__version__,
-        "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-    }
-
-
 def _ok(flag: bool) -> str:
     return "yes" if flag else "**NO**"
 
@@ -436,12 +414,7 @@ def render_markdown(results: dict) -> str:
     for i in range(rounds):
         cells = " | ".join(f"{values[i]:.1f}" for values in r["us_per_jump"].values())
         lines.append(f"| {i + 1} | {cells} |")
-    lines += [
-        "",
-        "## Machine",
-        "",
-        *(f"- {key}: {value}" for key, value in mi.items()),
-    ]
+    lines += ["", *machine_markdown(mi)]
     return "\n".join(lines) + "\n"
 
 
@@ -481,7 +454,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "config": config,
         "batch": batch,
         "load_end": os.getloadavg()[0],
-        "machine": machine_info(),
+        "machine": machine_info(("numpy", "pandas", "numba")),
         "total_wall_s": time.perf_counter() - t_start,
     }
     report = render_markdown(results)

@@ -53,7 +53,8 @@ from pathlib import Path
 
 import numba
 import numpy as np
-from bench_simulator import Workload, draw_workload, machine_info, programs
+from _machine import machine_info, machine_markdown  # this folder
+from bench_simulator import Workload, draw_workload, programs
 
 from granbayes import _kernel
 from granbayes._simulator import (
@@ -507,20 +508,7 @@ def render_markdown(results: dict) -> str:
             f"{b['max_error_mm']:.2e} | {b['max_error_mm_s']:.2e} |"
         )
     add("")
-    mi = results["machine"]
-    add("## Machine")
-    add("")
-    add(f"- platform: {mi['platform']}")
-    add(f"- CPU: {mi['cpu']}")
-    add(
-        f"- CPU count: {mi['cpu_count']} (available to this process: {mi['cpus_available']}; "
-        f"numba threads: {mi['numba_threads']})"
-    )
-    add(
-        f"- Python {mi['python']}, numpy {mi['numpy']}, numba {mi['numba']}, scipy "
-        f"{mi['scipy']}, granbayes {mi['granbayes']}"
-    )
-    add(f"- date: {mi['date']}")
+    lines.extend(machine_markdown(results["machine"]))
     return "\n".join(lines) + "\n"
 
 

@@ -27,11 +27,9 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import datetime
 import functools
 import json
 import os
-import platform
 import resource
 import statistics
 import subprocess
@@ -46,7 +44,7 @@ from pathlib import Path
 
 import numba
 import numpy as np
-import scipy
+from _machine import machine_info, machine_markdown  # this folder
 
 import granbayes
 from granbayes._experiment import Robot
@@ -433,31 +431,6 @@ def bench_memory(n: int, seed: int, n_threads: int = 2) -> dict:
 
 # ----------------------------------------------------------------------------------------
 # report
-def machine_info() -> dict:
-    """Platform, CPU, library versions and date of the run."""
-    cpu = platform.processor()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if "model name" in line)
-    except (OSError, StopIteration):
-        pass
-    return {
-        "platform": platform.platform(),
-        "cpu": cpu,
-        "cpu_count": os.cpu_count(),
-        "cpus_available": len(os.sched_getaffinity(0))
-        if hasattr(os, "sched_getaffinity")
-        else None,
-        "numba_threads": numba.config.NUMBA_NUM_THREADS,
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "numba": numba.__version__,
-        "scipy": scipy.__version__,
-        "granbayes": granbayes.__version__,
-        "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-    }
-
-
 def _ok(flag: bool) -> str:
     return "yes" if flag else "**NO**"
 
@@ -604,20 +577,7 @@ def render_markdown(results: dict) -> str:
     add(f"| wall time (simulate) | {m['simulate_s']:.2f} s ({m['us_per_jump']:.1f} us/jump) | | |")
     add(f"| failed jumps | {m['failed']} | 0 | {_ok(m['failed'] == 0)} |")
     add("")
-    mi = results["machine"]
-    add("## Machine")
-    add("")
-    add(f"- platform: {mi['platform']}")
-    add(f"- CPU: {mi['cpu']}")
-    add(
-        f"- CPU count: {mi['cpu_count']} (available to this process: {mi['cpus_available']}; "
-        f"numba threads: {mi['numba_threads']})"
-    )
-    add(
-        f"- Python {mi['python']}, numpy {mi['numpy']}, numba {mi['numba']}, scipy "
-        f"{mi['scipy']}, granbayes {mi['granbayes']}"
-    )
-    add(f"- date: {mi['date']}")
+    lines.extend(machine_markdown(results["machine"]))
     return "\n".join(lines) + "\n"
 
 
