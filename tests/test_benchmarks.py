@@ -1,0 +1,62 @@
+"""The benchmark and study scripts of ``benchmarks/`` still load against the package.
+
+They run for minutes to hours and are not part of the suite, so a refactor of the package
+that moves a name they import (or wrap) would otherwise go unnoticed until someone reruns
+them: ``bench_batch.py``'s phase clock once wrapped a CSV reader in a module it had left.
+Here every script is imported (its top level only; each runs its work under
+``if __name__ == "__main__"``) and the batch benchmark's phase clock is entered, which looks
+up every function it times.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+SCRIPTS = sorted(p.stem for p in BENCHMARKS.glob("*.py"))
+
+
+@pytest.fixture()
+def benchmarks_on_path(monkeypatch):
+    """The scripts import their helpers (``_studies``, ``_machine``) from their folder."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    yield
+    for name in SCRIPTS:
+        sys.modules.pop(name, None)
+
+
+def test_every_benchmark_script_is_found() -> None:
+    assert "bench_batch" in SCRIPTS and "calibrate_verdicts" in SCRIPTS
+    assert len(SCRIPTS) >= 20
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_a_benchmark_script_imports(name, benchmarks_on_path) -> None:
+    module = importlib.import_module(name)
+    if not name.startswith("_"):  # a script, not a helper: it runs from its main guard
+        assert "__main__" in (BENCHMARKS / f"{name}.py").read_text(encoding="utf-8")
+        assert callable(getattr(module, "main", None)), f"{name}.py has no main()"
+
+
+def test_the_batch_benchmarks_phase_clock_finds_what_it_times(benchmarks_on_path) -> None:
+    """Every function the clock wraps exists, and leaving it restores the originals."""
+    bench_batch = importlib.import_module("bench_batch")
+    import granbayes._simulator
+
+    original = granbayes._simulator.simulate_rows
+    phases: dict[str, float] = {}
+    with bench_batch.phase_clock(phases):
+        assert granbayes._simulator.simulate_rows is not original
+    assert granbayes._simulator.simulate_rows is original
+
+
+def test_the_machine_record_of_the_timing_benchmarks(benchmarks_on_path) -> None:
+    machine = importlib.import_module("_machine")
+    info = machine.machine_info(("numpy", "pandas"))
+    assert info["cpu_count"] >= 1 and info["numpy"] and info["pandas"] and info["granbayes"]
+    lines = machine.machine_markdown(info)
+    assert lines[0] == "## Machine" and f"- cpu: {info['cpu']}" in lines
