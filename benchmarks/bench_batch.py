@@ -53,7 +53,6 @@ from _machine import machine_info, machine_markdown  # this folder
 
 import granbayes
 import granbayes._cli
-import granbayes._experiment
 import granbayes._measurements
 import granbayes._simulator
 import granbayes._tables
