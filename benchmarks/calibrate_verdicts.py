@@ -221,7 +221,14 @@ def figure(results: pd.DataFrame, summary: pd.DataFrame, stopped: str = "") -> F
         x, summary["right"], yerr=err, fmt="_", color="k", capsize=3, label="right: exact 95% CI"
     )
     n = dict(zip(summary["kind"], summary["n"], strict=True))
-    ax.set_xticks(x, [f"{k}\n(n={n[k]})" for k in kinds], rotation=30, ha="right", fontsize=8)
+    ax.set_xticks(
+        x,
+        [f"{k} (n={n[k]})" for k in kinds],
+        rotation=40,
+        ha="right",
+        rotation_mode="anchor",
+        fontsize=8,
+    )
     ax.set_ylim(0, 1.02)
     ax.set_ylabel("fraction of cases")
     ax.set_title(
