@@ -87,8 +87,11 @@ def tasks(kinds: list[str], per_size: int, seed: int, tracked: bool = False) -> 
     return [cell[i] for i in range(per_size) for cell in cells]
 
 
-def figure(table: pd.DataFrame) -> Figure:
-    """Detection probability against the effect's signal-to-noise ratio, per kind."""
+def figure(table: pd.DataFrame, stopped: str = "") -> Figure:
+    """Detection probability against the effect's signal-to-noise ratio, per kind.
+
+    ``stopped``: a line for the title of a study stopped part-way (how many cases).
+    """
     fig = Figure(figsize=(8.0, 4.4), layout="constrained")
     ax = fig.subplots()
     for kind, g in table.groupby("kind", sort=False):
@@ -102,7 +105,8 @@ def figure(table: pd.DataFrame) -> Figure:
     ax.set_ylabel("detected (exact 95% interval)")
     ax.set_title(
         "SYNTHETIC data (granbayes.calibration.power_case, benchmarks/power_curves.py):\n"
-        "where diagnose stops seeing; median effect size of the cases at each size",
+        "where diagnose stops seeing; median effect size of the cases at each size"
+        + (f"\n{stopped}" if stopped else ""),
         fontsize=8,
         loc="left",
     )
@@ -179,7 +183,10 @@ def write_summary(
         "![power](power.png)",
     ]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    figure(table).savefig(out / "power.png", dpi=130)
+    note = (
+        f"STOPPED STUDY: {len(results)} of {n_planned} planned cases (a pilot)" if stopped else ""
+    )
+    figure(table, note).savefig(out / "power.png", dpi=130)
 
 
 def main(argv: list[str] | None = None) -> int:
