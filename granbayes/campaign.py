@@ -425,14 +425,18 @@ def _connect(cluster: ClusterSettings) -> Iterator[tuple[Client, int]]:
         return
     workers, threads = local_cluster_size(cluster.n_workers)
     threads = threads if numba_threads is None else int(numba_threads)
-    env = {"NUMBA_NUM_THREADS": str(threads), "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    # No NUMBA_NUM_THREADS in the workers' environment: a worker process re-imports the
+    # main module (multiprocessing "spawn"), so numba is loaded with the machine's default
+    # before Dask's ``env`` is applied, and every later JIT compilation (a cold cache, a
+    # user's first campaign) would fail on the changed value. ``_execute`` sets the budget
+    # per task with ``numba.set_num_threads``; Dask's ``pre-spawn-environ`` already keeps
+    # the BLAS libraries single-threaded.
     with (
         LocalCluster(
             n_workers=workers,
             threads_per_worker=1,
             processes=True,
             dashboard_address="127.0.0.1:0",
-            env=env,
         ) as cluster,
         Client(cluster, set_as_default=False) as client,
     ):

@@ -265,3 +265,63 @@ def test_worker_killed_mid_task_is_retried_and_the_campaign_completes(tmp_path: 
     assert rows.loc["killer", "pid"] != killed_pid  # it ran again, in another process
     assert sorted(res.results["x"]) == [0, 1, 2, 3, 4, 99]  # nothing lost or duplicated
     assert len(list((tmp_path / "camp" / "tasks").iterdir())) == 6
+
+
+_COLD_SCRIPT = '''\
+import sys
+
+import numba  # the main module imports numba at its top, as the CLI and every study do
+
+from granbayes.campaign import ClusterSettings, Task, run_campaign
+
+
+def compile_fresh(x, *, seed):
+    """A task that JIT-compiles a function nobody compiled before (a cold numba cache)."""
+
+    @numba.njit
+    def plus_one(v):
+        return v + 1
+
+    return [{"x": x, "y": int(plus_one(x)), "threads": numba.get_num_threads()}]
+
+
+if __name__ == "__main__":
+    res = run_campaign(
+        [Task(f"t{i}", compile_fresh, (i,), seed=i) for i in range(2)],
+        sys.argv[1],
+        description={"test": "cold numba cache"},
+        cluster=ClusterSettings(n_workers=1, numba_threads=1),
+        progress=False,
+    )
+    for _, row in res.tasks.iterrows():
+        print(row["task_id"], row["status"], row["error"])
+    sys.exit(res.n_failed)
+'''
+
+
+@pytest.mark.skipif(sum(local_cluster_size()) < 3, reason="needs 2 cores")
+def test_tasks_that_compile_on_a_cold_numba_cache_run_on_a_local_cluster(
+    tmp_path: Path,
+) -> None:
+    """Regression: a worker process re-imports the main module (``spawn``), so numba is
+    loaded with the machine's default thread count before Dask's ``env`` reaches the
+    worker; a ``NUMBA_NUM_THREADS`` given there then made every task that compiled fail
+    ("Cannot set NUMBA_NUM_THREADS to a different value once the threads have been
+    launched"). A user's first campaign, on a fresh install, compiles. The thread budget
+    is set per task by ``numba.set_num_threads`` instead."""
+    import subprocess
+
+    script = tmp_path / "cold_campaign.py"
+    script.write_text(_COLD_SCRIPT)
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_NUM_THREADS"}
+    proc = subprocess.run(
+        [sys.executable, str(script), str(tmp_path / "camp")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
+    rows = pd.read_csv(tmp_path / "camp" / "results.csv")
+    assert sorted(rows["y"]) == [1, 2]
+    assert set(rows["threads"]) == {1}  # the per-task budget holds
