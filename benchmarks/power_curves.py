@@ -48,14 +48,18 @@ from _studies import (  # this folder
     summarize_finished,
 )
 from matplotlib.figure import Figure
+from matplotlib.ticker import FixedFormatter, FixedLocator, NullLocator
 
 from granbayes import __version__
 from granbayes.calibration import (
     POWER_DESIGN,
     POWER_SIZES,
     POWER_TRACKING,
+    RIGHT,
+    RIGHT_TIED,
     STEP_BUDGET,
     detection_sizes,
+    outcome,
     power_case,
     power_table,
 )
@@ -87,30 +91,81 @@ def tasks(kinds: list[str], per_size: int, seed: int, tracked: bool = False) -> 
     return [cell[i] for i in range(per_size) for cell in cells]
 
 
-def figure(table: pd.DataFrame, stopped: str = "") -> Figure:
-    """Detection probability against the effect's signal-to-noise ratio, per kind.
+def figure(
+    table: pd.DataFrame, results: pd.DataFrame, curves: pd.DataFrame, stopped: str = ""
+) -> Figure:
+    """Detection probability against the effect's signal-to-noise ratio, one panel per kind.
 
-    ``stopped``: a line for the title of a study stopped part-way (how many cases).
+    Each panel: every case at its own size (a tick at 1 if detected, 0 if not), the rate
+    per size of the ladder at the median size of its cases with its exact 95% interval,
+    and the logistic fit of ``curves`` (:func:`granbayes.calibration.detection_sizes` on
+    ``effect_snr``) over the measured range, with its 50% and 90% sizes where detection grew
+    with the size. ``stopped``: a line for the title of a study stopped part-way.
     """
-    fig = Figure(figsize=(8.0, 4.4), layout="constrained")
-    ax = fig.subplots()
-    for kind, g in table.groupby("kind", sort=False):
+    kinds = list(dict.fromkeys(table["kind"]))
+    ncols = 5
+    nrows = -(-len(kinds) // ncols)
+    fig = Figure(figsize=(11.0, 2.3 * nrows + 0.9), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, sharex=True, sharey=True)).ravel()
+    snr = results["effect_snr"].to_numpy(dtype=float)
+    lo, hi = np.nanmin(snr) / 1.3, np.nanmax(snr) * 1.3
+    ticks = [t for t in (1, 2, 5, 10, 20, 50, 100, 200) if lo <= t <= hi]
+    detected = results.assign(added=results["added"].fillna("")).apply(outcome, axis=1)
+    detected = detected.isin((RIGHT, RIGHT_TIED))
+    for ax, kind in zip(axes, kinds, strict=False):
+        g = table[table["kind"] == kind]
+        cases = results["kind"] == kind
+        y = detected[cases].to_numpy(dtype=float)
+        ax.plot(
+            results.loc[cases, "effect_snr"],
+            np.where(y == 1, 1.04, -0.04),
+            "|",
+            color="0.45",
+            ms=6,
+            label="a case (1 detected, 0 not)",
+        )
         err = np.vstack([g["p"] - g["p_lo"], g["p_hi"] - g["p"]])
-        ax.errorbar(g["effect_snr"], g["p"], yerr=err, marker="o", capsize=3, label=kind)
-    ax.set_xscale("log")
-    ax.set_ylim(-0.02, 1.02)
-    ax.axhline(0.5, color="0.6", lw=0.8, ls=":")
-    ax.axhline(0.9, color="0.6", lw=0.8, ls=":")
-    ax.set_xlabel("effect size: sqrt(sum over jumps of (height change / scatter)^2) [-]")
-    ax.set_ylabel("detected (exact 95% interval)")
-    ax.set_title(
-        "SYNTHETIC data (granbayes.calibration.power_case, benchmarks/power_curves.py):\n"
-        "where diagnose stops seeing; median effect size of the cases at each size"
-        + (f"\n{stopped}" if stopped else ""),
-        fontsize=8,
-        loc="left",
+        ax.errorbar(
+            g["effect_snr"],
+            g["p"],
+            yerr=err,
+            fmt="o",
+            color="C0",
+            capsize=2,
+            ms=4,
+            label="rate per size (exact 95%)",
+        )
+        row = curves[curves["kind"] == kind]
+        if len(row) and np.isfinite(row["size_50"].iloc[0]):
+            r = row.iloc[0]
+            x = np.geomspace(r["range_lo"], r["range_hi"], 100)
+            p = 1.0 / (1.0 + np.exp(-r["slope"] * (np.log(x) - np.log(r["size_50"]))))
+            ax.plot(x, p, color="C3", lw=1.2, label="logistic fit")
+            for level, size in ((0.5, r["size_50"]), (0.9, r["size_90"])):
+                if r["range_lo"] <= size <= r["range_hi"]:
+                    ax.plot([size], [level], "v", color="C3", ms=5)
+        ax.set_title(f"{kind.replace('_', ' ')} (n={int(g['n'].sum())})", fontsize=8)
+        ax.axhline(0.5, color="0.75", lw=0.6, ls=":")
+        ax.axhline(0.9, color="0.75", lw=0.6, ls=":")
+        ax.set_xscale("log")
+        ax.xaxis.set_major_locator(FixedLocator(ticks))
+        ax.xaxis.set_major_formatter(FixedFormatter([str(t) for t in ticks]))
+        ax.xaxis.set_minor_locator(NullLocator())
+        ax.tick_params(labelsize=7)
+    for ax in axes[len(kinds) :]:
+        ax.set_visible(False)
+    axes[0].set_xlim(lo, hi)
+    axes[0].set_ylim(-0.08, 1.08)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, loc="outside lower center", ncols=3)
+    fig.suptitle(
+        "SYNTHETIC data (granbayes.calibration.power_case, benchmarks/power_curves.py): "
+        "where diagnose stops seeing"
+        + (f"\n{stopped}" if stopped else "")
+        + "\nx: effect size before refit, sqrt(sum over jumps of (height change / scatter)^2)"
+        " [-]; y: detected",
+        fontsize=9,
     )
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return fig
 
 
@@ -186,7 +241,7 @@ def write_summary(
     note = (
         f"STOPPED STUDY: {len(results)} of {n_planned} planned cases (a pilot)" if stopped else ""
     )
-    figure(table, note).savefig(out / "power.png", dpi=130)
+    figure(table, results, by_snr, note).savefig(out / "power.png", dpi=130)
 
 
 def main(argv: list[str] | None = None) -> int:
