@@ -1835,8 +1835,9 @@ def detection_sizes(
     Per kind, a logistic regression of detection (:func:`power_table`'s rule) on the
     logarithm of ``column`` over the cases (:func:`_logistic`), read at each level:
     ``size_50``, ``size_90`` (``nan`` where the fit has no positive slope: detection did
-    not grow with the size). Read with the per-size rates, whose intervals show how much
-    the curve can be trusted.
+    not grow with the size; and where every case was missed, or every case detected: the
+    curve lies outside the sizes tried). Read with the per-size rates, whose intervals show
+    how much the curve can be trusted.
 
     Parameters
     ----------
@@ -1870,7 +1871,10 @@ def detection_sizes(
         )
         centre, b0, b1 = _logistic(x, y)
         flip = column == "size" and kind in ("unloading", "janssen_saturation")
-        usable = np.isfinite(b1) and (b1 < 0 if flip else b1 > 0)
+        # every case missed (or every case detected): the ridge leaves a slope of ~0 with
+        # either sign and an intercept running off; no size can be read from that
+        varied = 0.0 < y.sum() < len(y)
+        usable = varied and np.isfinite(b1) and (b1 < 0 if flip else b1 > 0)
         row["slope"] = float(b1)
         for level in levels:
             logit = np.log(level / (1.0 - level))

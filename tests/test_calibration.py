@@ -633,7 +633,7 @@ def test_detection_sizes_recover_a_known_logistic_curve() -> None:
     """Cases detected with probability 1 / (1 + exp(-2 (log s - log 10))) (seeded, 2,000
     cases over s in [1, 100]): the fitted size at 50% is 10 and at 90% 10 exp(log(9) / 2)
     = 30, within 10% (about 4 SE of the fit's log size, SE ~ 0.025); a kind whose
-    detection falls with size gets no size (nan)."""
+    detection falls with size, or never varies, gets no size (nan)."""
     from granbayes.calibration import detection_sizes
 
     rng = np.random.default_rng(0)
@@ -655,6 +655,14 @@ def test_detection_sizes_recover_a_known_logistic_curve() -> None:
     assert d.loc["drag", "range_lo"] >= 1.0 and d.loc["drag", "range_hi"] <= 100.0
     falling = rows.assign(effect_snr=1.0 / s)
     assert np.isnan(detection_sizes(falling).loc[0, "size_50"])
+    # a kind never detected (or always) has no size, whatever sign its ~0 slope takes,
+    # also on the own parameter of a kind where smaller is stronger
+    for verdict, added in (("baseline_adequate", ""), ("extended", "drag")):
+        same = rows.assign(verdict=verdict, added=added)
+        for kind in ("drag", "janssen_saturation"):
+            for column in ("effect_snr", "size"):
+                d = detection_sizes(same.assign(kind=kind), column).iloc[0]
+                assert np.isnan(d["size_50"]) and np.isnan(d["size_90"]), (kind, column)
 
 
 def test_a_power_case_row_carries_its_size_and_design(monkeypatch) -> None:
