@@ -169,6 +169,28 @@ def figure(
     return fig
 
 
+def _within_range(sizes: pd.DataFrame) -> pd.DataFrame:
+    """The detection sizes as text, those beyond the sizes tried as "> hi" or "< lo".
+
+    A logistic curve read outside the measured range is an extrapolation of a few cases
+    (``summary.json`` keeps the fitted values).
+    """
+    out = sizes.copy()
+    for col in [c for c in sizes.columns if c.startswith("size_")]:
+        text = []
+        for value, lo, hi in zip(sizes[col], sizes["range_lo"], sizes["range_hi"], strict=True):
+            if not np.isfinite(value):
+                text.append("-")
+            elif value > hi:
+                text.append(f"> {hi:.3g}")
+            elif value < lo:
+                text.append(f"< {lo:.3g}")
+            else:
+                text.append(f"{value:.3g}")
+        out[col] = text
+    return out
+
+
 def write_summary(
     out: Path, results: pd.DataFrame, seed: int, n_planned: int, tracked: bool = False
 ) -> None:
@@ -225,15 +247,16 @@ def write_summary(
         "",
         "On the effect's signal-to-noise ratio (comparable across kinds):",
         "",
-        markdown_table(by_snr, ".3g", missing="-"),
+        markdown_table(_within_range(by_snr), ".3g", missing="-"),
         "",
         "On the effect's own parameter (`POWER_SIZES`; for unloading and Janssen "
         "saturation smaller is stronger):",
         "",
-        markdown_table(by_size, ".3g", missing="-"),
+        markdown_table(_within_range(by_size), ".3g", missing="-"),
         "",
-        "A size outside `range_lo`-`range_hi` is extrapolated; `-`: detection did not grow "
-        "with the size.",
+        "`> range_hi`, `< range_lo`: the curve reaches the level only beyond the sizes tried "
+        "(its extrapolation is in `summary.json`); `-`: detection did not grow with the size, "
+        "or never varied.",
         "",
         "![power](power.png)",
     ]
