@@ -362,9 +362,15 @@ def write_up(
         + (
             "to the jump heights."
             if kinds == ["heights"]
-            else f"to {', '.join(kinds)} (each command's own jumps and tracked jumps; the "
-            "intrusion tests belong to no command, so every command's fit uses all of them "
-            "at its volume fraction)."
+            else f"to {', '.join(kinds)} (each command's own jumps"
+            + (" and tracked jumps" if "trajectories" in kinds else "")
+            + (
+                "; the intrusion tests belong to no command, so every command's fit uses all "
+                "of them at its volume fraction"
+                if "intrusions" in kinds
+                else ""
+            )
+            + ")."
         ),
         "",
         "**Definitions.** The added-mass force is the snowplough momentum flux "

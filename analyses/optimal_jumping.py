@@ -92,7 +92,8 @@ def force_posterior(ctx: common.Context) -> tuple[xr.DataTree, str]:
     s = common.sampler_settings(ctx.fast)
     return result.datatree, (
         f"force law `{' + '.join(terms)}` fitted per volume fraction here "
-        f"({s.n_ensembles} ensembles of {s.n_walkers} walkers, {s.n_draws} kept draws each)"
+        f"({s.n_ensembles} ensembles of max({s.n_walkers}, 4 x the dimensions) walkers, "
+        f"{s.n_draws} kept draws each)"
     )
 
 
