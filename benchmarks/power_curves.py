@@ -55,11 +55,9 @@ from granbayes.calibration import (
     POWER_DESIGN,
     POWER_SIZES,
     POWER_TRACKING,
-    RIGHT,
-    RIGHT_TIED,
     STEP_BUDGET,
+    detected,
     detection_sizes,
-    outcome,
     power_case,
     power_table,
 )
@@ -110,12 +108,11 @@ def figure(
     snr = results["effect_snr"].to_numpy(dtype=float)
     lo, hi = np.nanmin(snr) / 1.3, np.nanmax(snr) * 1.3
     ticks = [t for t in (1, 2, 5, 10, 20, 50, 100, 200) if lo <= t <= hi]
-    detected = results.assign(added=results["added"].fillna("")).apply(outcome, axis=1)
-    detected = detected.isin((RIGHT, RIGHT_TIED))
+    hit = detected(results)
     for ax, kind in zip(axes, kinds, strict=False):
         g = table[table["kind"] == kind]
         cases = results["kind"] == kind
-        y = detected[cases].to_numpy(dtype=float)
+        y = hit[cases].to_numpy(dtype=float)
         ax.plot(
             results.loc[cases, "effect_snr"],
             np.where(y == 1, 1.04, -0.04),

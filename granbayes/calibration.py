@@ -95,6 +95,7 @@ __all__ = [
     "diagnose_miscalibrated",
     "design_parameter_case",
     "design_tie_case",
+    "detected",
     "detection_sizes",
     "effect_size",
     "extra_jumps",
@@ -1748,6 +1749,27 @@ def power_case(
     )
 
 
+def detected(results: pd.DataFrame) -> pd.Series:
+    """Whether each case of a power study was detected (its outcome is right).
+
+    For a library term, ``extended`` with exactly that term (a tie reported with it
+    counts); for an effect outside the library, ``misfit_remains`` or a law as good as the
+    truth on a fresh replicate (:func:`outcome`).
+
+    Parameters
+    ----------
+    results : pandas.DataFrame
+        Rows of :func:`power_case`.
+
+    Returns
+    -------
+    pandas.Series of bool
+        One per row, on the rows' index.
+    """
+    rows = results.assign(added=results["added"].fillna(""))
+    return rows.apply(outcome, axis=1).isin((RIGHT, RIGHT_TIED))
+
+
 def power_table(results: pd.DataFrame, level: float = 0.95) -> pd.DataFrame:
     """Detection probability per kind and effect size, with exact intervals.
 
@@ -1772,11 +1794,10 @@ def power_table(results: pd.DataFrame, level: float = 0.95) -> pd.DataFrame:
         ``baseline_adequate`` (fraction), ``named`` (fraction naming a term),
         ``over_budget``, and the medians of ``effect_rms_mm`` and ``effect_snr``.
     """
-    results = results.copy()
-    results["added"] = results["added"].fillna("")
+    results = results.assign(added=results["added"].fillna(""), right=detected(results))
     rows = []
     for (kind, size), g in results.groupby(["kind", "size"], sort=False):
-        right = g.apply(outcome, axis=1).isin((RIGHT, RIGHT_TIED))
+        right = g["right"]
         n, k = len(g), int(right.sum())
         lo, hi = clopper_pearson(k, n, level)
         ladder = POWER_SIZES.get(kind, ())
@@ -1857,12 +1878,11 @@ def detection_sizes(
         a size outside it is extrapolated), ``slope`` (per unit of log size), then
         ``size_<level>`` per level.
     """
-    results = results.copy()
-    results["added"] = results["added"].fillna("")
+    results = results.assign(right=detected(results))
     rows = []
     for kind, g in results.groupby("kind", sort=False):
         x = np.log(g[column].to_numpy(dtype=float))
-        y = g.apply(outcome, axis=1).isin((RIGHT, RIGHT_TIED)).to_numpy(dtype=float)
+        y = g["right"].to_numpy(dtype=float)
         ok = np.isfinite(x)
         x, y = x[ok], y[ok]
         row: dict[str, Any] = {"kind": kind, "n": len(x)}
