@@ -19,6 +19,7 @@ from __future__ import annotations
 import codecs
 import csv
 import difflib
+import functools
 import io
 import itertools
 import math
@@ -762,29 +763,6 @@ def _plain_lines(text: str) -> list[str] | None:
     return lines
 
 
-def _line_shapes(text: bytes, n_lines: int) -> tuple[np.ndarray, np.ndarray]:
-    """Commas and characters of each line of an ASCII text, from its bytes.
-
-    Parameters
-    ----------
-    text : bytes
-        ASCII text.
-    n_lines : int
-        Its lines (:func:`_plain_lines`: none after a final line break).
-
-    Returns
-    -------
-    commas, lengths : numpy.ndarray
-        int64, per line.
-    """
-    data = np.frombuffer(text, dtype=np.uint8)
-    ends = np.flatnonzero(data == ord("\n"))[:n_lines]
-    if len(ends) < n_lines:  # the last line has no line break
-        ends = np.append(ends, len(data))
-    commas = np.diff(np.searchsorted(np.flatnonzero(data == ord(",")), ends), prepend=0)
-    return commas, np.diff(ends, prepend=-1) - 1
-
-
 def _quoted_records(text: str, file: Path) -> tuple[list[list[str]], np.ndarray]:
     """Read a CSV text with the csv module.
 
@@ -844,6 +822,45 @@ def _raise_csv_error(text: str, file: Path) -> NoReturn:
     raise InputError("malformed CSV", file=file)  # unreachable: the same reader failed
 
 
+#: Spellings of NaN that a decimal parser might accept (C's ``strtod``, fast_float): every
+#: case of ``nan``, signed or not, and with a payload.
+_NAN_SPELLINGS = tuple(
+    sign + "".join(letters) + payload
+    for sign in ("", "+", "-")
+    for letters in itertools.product("nN", "aA", "nN")
+    for payload in ("", "(1)")
+)
+
+
+@functools.cache
+def _pandas_refuses_nan_text() -> bool:
+    """Whether pandas' C reader, as :func:`_read_numbers` calls it, refuses every NaN text.
+
+    Asked of the installed pandas once per process (about 50 one-cell reads), instead of
+    scanning every table's text for ``nan`` whenever it has an empty cell: if it refuses
+    them all, a NaN it returns can only be an empty cell.
+
+    Returns
+    -------
+    bool
+        True if every spelling in :data:`_NAN_SPELLINGS` raises ``ValueError``.
+    """
+    for spelling in _NAN_SPELLINGS:
+        try:
+            pd.read_csv(
+                io.BytesIO(f"x\n{spelling}\n".encode("ascii")),
+                dtype={"x": np.float64},
+                keep_default_na=False,
+                na_values={"x": [""]},
+                quoting=csv.QUOTE_NONE,
+                engine="c",
+            )
+        except ValueError:
+            continue
+        return False
+    return True
+
+
 def _read_numbers(table: _CsvTable, text: bytes, start: int, numbers: Collection[str]) -> bool:
     """Read a plain table's data with pandas' C reader, columns in ``numbers`` as numbers.
 
@@ -852,8 +869,9 @@ def _read_numbers(table: _CsvTable, text: bytes, start: int, numbers: Collection
     finite number is a plain decimal number, parsed as ``float`` does
     (:func:`_decimal_floats`); an infinite one is refused later by the range checks, with
     the cell's text. An empty cell gives NaN, and no other cell does: pandas refuses the
-    spellings of NaN with these options, and should a version not, a text that spells
-    ``nan`` (in any case) is read cell by cell instead. Where the reader refuses a cell,
+    spellings of NaN with these options (:func:`_pandas_refuses_nan_text` asks it once),
+    and should a version not, a table whose text spells ``nan`` (in any case) is read
+    cell by cell instead. Where the reader refuses a cell,
     nothing is changed.
 
     Parameters
@@ -901,7 +919,7 @@ def _read_numbers(table: _CsvTable, text: bytes, start: int, numbers: Collection
         return False
     values = {name: frame[name].to_numpy(np.float64, copy=True) for name in parsed}
     if any(np.isnan(column).any() for column in values.values()):
-        if text.lower().find(b"nan", start) >= 0:
+        if not _pandas_refuses_nan_text() and text.lower().find(b"nan", start) >= 0:
             return False
     table.numbers = values
     table.cells = {name: frame[name].tolist() for name in table.header if name not in numbers}
@@ -945,18 +963,15 @@ def _read_csv(file: Path, numbers: Collection[str] = ()) -> _CsvTable:
     lines = _plain_lines(text)
     spaced = lines is None or not text.isascii() or any(c in text for c in _ASCII_SPACE)
     if lines is not None:
-        if spaced:
-            lengths = np.fromiter(map(len, lines), dtype=np.int64, count=len(lines))
-        else:
-            if b"\r" in raw or raw.startswith(codecs.BOM_UTF8):  # the bytes of the text
-                raw = text.encode("ascii")
-            commas, lengths = _line_shapes(raw, len(lines))
+        # per line, in Python's C loops: cheaper than NumPy over the bytes (whose 20 MB
+        # temporaries of a large file cost more in page faults than the counting itself)
+        lengths = np.fromiter(map(len, lines), dtype=np.int64, count=len(lines))
+        commas = np.fromiter(map(methodcaller("count", ","), lines), np.int64, len(lines))
         if lengths.size and lengths.max() > csv.field_size_limit():
             lines = None  # a field may be longer than the csv module allows: let it say so
     if lines is not None:
         starts = np.arange(1, len(lines) + 1, dtype=np.int64)
         if spaced:  # blank: nothing but commas and whitespace
-            commas = np.fromiter(map(methodcaller("count", ","), lines), np.int64, len(lines))
             unblank = map(str.strip, map(methodcaller("replace", ",", ""), lines))
             filled = np.fromiter(map(bool, unblank), dtype=bool, count=len(lines))
         else:  # blank: nothing but commas
@@ -997,6 +1012,8 @@ def _read_csv(file: Path, numbers: Collection[str] = ()) -> _CsvTable:
         if not spaced and not wrong and len(named) == width:
             table.lines = body
             data_start = len("\n".join(lines[: first + 1])) + 1
+            if b"\r" in raw or raw.startswith(codecs.BOM_UTF8):  # the bytes of the text
+                raw = text.encode("ascii")
             if contiguous and _read_numbers(table, raw, data_start, numbers):
                 return table
         cells = ",".join(body).split(",")  # no cell holds a comma: the file has no quotes

@@ -929,14 +929,21 @@ def random_table(pick: Pick) -> tuple[str, list[str], str]:
 
 def check_against_reference(kind: str, header: list[str], text: str, folder: Path) -> None:
     """Load ``text`` (as ``folder/table.csv``) with numeric columns parsed by pandas'
-    reader wherever it applies, and by float() alone (the path of small columns and of
-    other pandas versions); both must give what the per-cell reference gives."""
+    reader wherever it applies (as if pandas read a NaN text as NaN too, the path that
+    scans for one), and by float() alone (the path of small columns and of other pandas
+    versions); each must give what the per-cell reference gives."""
     expected = reference_load(kind, text.replace("\r\n", "\n"))
     file = folder / "table.csv"
     file.write_bytes(text.encode("utf-8"))
-    for min_cells in (0, 10**9):
-        with mock.patch.object(experiment_module, "_PANDAS_MIN_CELLS", min_cells):
-            assert loaded(kind, file, header) == expected, (min_cells, text)
+    for min_cells, refuses_nan in ((0, True), (0, False), (10**9, True)):
+        # refuses_nan=False: the path of a pandas that parsed a NaN text (the text scan)
+        with (
+            mock.patch.object(experiment_module, "_PANDAS_MIN_CELLS", min_cells),
+            mock.patch.object(
+                experiment_module, "_pandas_refuses_nan_text", lambda value=refuses_nan: value
+            ),
+        ):
+            assert loaded(kind, file, header) == expected, (min_cells, refuses_nan, text)
 
 
 @given(case=st.composite(lambda draw: random_table(Pick(draw=draw)))())
@@ -956,6 +963,29 @@ def test_bulk_checks_on_many_random_tables(tmp_path: Path) -> None:
     rng = random.Random(20261126)
     for _ in range(1000):
         check_against_reference(*random_table(Pick(rng=rng)), tmp_path)
+
+
+def test_pandas_refuses_every_nan_text() -> None:
+    """The probe of the installed pandas (which spares every table a scan for ``nan``)
+    agrees with what its reader does with each spelling inside a table of numbers."""
+    refused = []
+    for spelling in experiment_module._NAN_SPELLINGS:
+        text = "x\n" + "1.5\n" * 5 + f"{spelling}\n"
+        try:
+            pd.read_csv(
+                io.StringIO(text),
+                dtype={"x": np.float64},
+                keep_default_na=False,
+                na_values={"x": [""]},
+                quoting=csv.QUOTE_NONE,
+                engine="c",
+            )
+        except ValueError:
+            refused.append(spelling)
+    assert experiment_module._pandas_refuses_nan_text() == (
+        len(refused) == len(experiment_module._NAN_SPELLINGS)
+    )
+    assert {"nan", "NaN", "-nan", "+NAN", "nan(1)"} <= set(experiment_module._NAN_SPELLINGS)
 
 
 @pytest.mark.parametrize("pandas_cells", [0, 10**9])
