@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import matplotlib
@@ -188,6 +189,61 @@ def _within_range(sizes: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def paired_with_heights(tracked: pd.DataFrame, heights: pd.DataFrame) -> pd.DataFrame:
+    """The tracked study's cases beside the same cases fitted to their heights alone.
+
+    The two studies draw each case from the same seed (the task id) and the tracked
+    one adds frames from a stream of their own, so the heights are the same. Per kind
+    and size: the pairs both studies finished, how many each detected, and the discordant
+    pairs (detected with the frames only, with the heights only); per kind over its
+    sizes, the exact two-sided McNemar test (binomial on the discordant pairs).
+
+    Parameters
+    ----------
+    tracked, heights : pandas.DataFrame
+        ``results.csv`` of the tracked study and of the heights-only one.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per kind and size (``size`` NaN: the kind's total, with ``mcnemar_p``).
+
+    Raises
+    ------
+    ValueError
+        If a pair's scatter differs (not the same case).
+    """
+    from scipy.stats import binomtest
+
+    both = tracked.assign(hit=detected(tracked)).merge(
+        heights.assign(hit=detected(heights)),
+        on="task_id",
+        suffixes=("_tracked", "_heights"),
+    )
+    if not np.allclose(both["sigma_mm_tracked"], both["sigma_mm_heights"], rtol=0, atol=0):
+        raise ValueError("a tracked case and its heights-only case differ: not the same draw")
+    both["only_tracked"] = both["hit_tracked"] & ~both["hit_heights"]
+    both["only_heights"] = both["hit_heights"] & ~both["hit_tracked"]
+    rows = []
+    for kind, g in both.groupby("kind_tracked", sort=False):
+        for size, c in [*g.groupby("size_tracked", sort=True), (math.nan, g)]:
+            row = {
+                "kind": kind,
+                "size": size,
+                "pairs": len(c),
+                "detected_heights": int(c["hit_heights"].sum()),
+                "detected_tracked": int(c["hit_tracked"].sum()),
+                "only_tracked": int(c["only_tracked"].sum()),
+                "only_heights": int(c["only_heights"].sum()),
+                "mcnemar_p": math.nan,
+            }
+            discordant = row["only_tracked"] + row["only_heights"]
+            if math.isnan(size) and discordant:
+                row["mcnemar_p"] = binomtest(row["only_tracked"], discordant).pvalue
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def write_summary(
     out: Path, results: pd.DataFrame, seed: int, n_planned: int, tracked: bool = False
 ) -> None:
@@ -257,6 +313,22 @@ def write_summary(
         "",
         "![power](power.png)",
     ]
+    heights_csv = HERE / "results" / "power" / "results.csv"
+    if tracked and heights_csv.exists():
+        paired = paired_with_heights(results, pd.read_csv(heights_csv))
+        doc["paired_with_heights"] = paired.to_dict("records")
+        (out / "summary.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
+        lines += [
+            "",
+            "## The same cases fitted to their heights alone",
+            "",
+            "Each case beside itself in `benchmarks/results/power/` (the heights-only study: "
+            "the same seed, the same heights): detected with and without the frames, the "
+            "discordant pairs, and per kind (`size` empty) the exact two-sided McNemar test "
+            "on them.",
+            "",
+            markdown_table(paired, ".3g", missing=""),
+        ]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     note = (
         f"STOPPED STUDY: {len(results)} of {n_planned} planned cases (a pilot)" if stopped else ""

@@ -11,6 +11,7 @@ up every function it times.
 from __future__ import annotations
 
 import importlib
+import math
 import sys
 from pathlib import Path
 
@@ -60,3 +61,40 @@ def test_the_machine_record_of_the_timing_benchmarks(benchmarks_on_path) -> None
     assert info["cpu_count"] >= 1 and info["numpy"] and info["pandas"] and info["granbayes"]
     lines = machine.machine_markdown(info)
     assert lines[0] == "## Machine" and f"- cpu: {info['cpu']}" in lines
+
+
+def test_the_tracked_power_study_pairs_each_case_with_its_heights_only_twin(
+    benchmarks_on_path,
+) -> None:
+    """Counts per kind and size, the discordant pairs and McNemar's exact test, on rows of
+    the committed heights-only study with some verdicts changed; a pair whose scatter
+    differs (not the same draw) is refused."""
+    import pandas as pd
+
+    power = importlib.import_module("power_curves")
+    heights = pd.read_csv(BENCHMARKS / "results" / "power" / "results.csv")
+    heights = heights[heights["kind"] == "drag"].reset_index(drop=True)
+    was = power.detected(heights).to_numpy()
+    assert was.any() and not was.all()
+    tracked = heights.copy()
+    # the frames find every missed case of the two largest sizes, and miss one found case
+    big = tracked["size"] >= sorted(tracked["size"].unique())[-2]
+    gained = big & ~was
+    tracked.loc[gained, ["verdict", "added"]] = ["extended", "drag"]
+    lost = int(next(i for i in range(len(was)) if was[i] and not big[i]))
+    tracked.loc[lost, ["verdict", "added"]] = ["baseline_adequate", ""]
+    paired = power.paired_with_heights(tracked, heights)
+    total = paired[paired["size"].isna()].iloc[0]
+    assert total["pairs"] == len(heights)
+    assert total["detected_heights"] == was.sum()
+    assert total["only_tracked"] == gained.sum() and total["only_heights"] == 1
+    assert total["detected_tracked"] == was.sum() + gained.sum() - 1
+    n = int(gained.sum()) + 1
+    expected = min(1.0, 2 * sum(math.comb(n, k) for k in range(0, 2)) / 2**n)
+    assert total["mcnemar_p"] == pytest.approx(expected, rel=1e-12)
+    per_size = paired[paired["size"].notna()]
+    assert per_size["pairs"].sum() == len(heights)
+    assert per_size["mcnemar_p"].isna().all()
+    tracked.loc[0, "sigma_mm"] += 0.1
+    with pytest.raises(ValueError, match="not the same draw"):
+        power.paired_with_heights(tracked, heights)
