@@ -18,7 +18,11 @@ joint fit) is calibrated the same way, with every kind's noise parameters drawn 
 priors too, and its replicates made by the independent oracle
 (:func:`draw_measurements`); a design of heights alone keeps the kernel's replicates of
 step 2 (:func:`draw_replicate`, fast: the simulator a fit already trusts, checked against
-the oracle by the tests).
+the oracle by the tests). A ``quadratic`` fit (coefficients smooth in ``phi - phi_c``) is
+calibrated on replicates of the oracle in which every jump is on its own bed, whose true
+phi is ``Normal(written phi, phi_sd)`` (:func:`draw_beds`): the calibration of a fit that
+integrates each bed's phi out (``bed_phi="integrate"``) or takes it as written; its ranks
+are of the law's values at each written phi.
 
 If the fit is calibrated every rank is uniform on ``0..n_rank_draws``. The replicates run
 as tasks of a campaign (:mod:`granbayes.campaign`) on Dask, resumable, each with a seed
@@ -34,7 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -172,6 +176,98 @@ def _draw_prior(model, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray
         f"at phi={float(model.phis[0]):g} none of {_MAX_PRIOR_TRIES} prior draws gave jumps "
         "that all finish; narrow the priors"
     )
+
+
+def draw_beds(
+    experiment: Experiment,
+    design: pd.DataFrame,
+    settings: FitSettings,
+    priors: Mapping[str, Prior],
+    rng: np.random.Generator,
+) -> tuple[pd.DataFrame, dict[float, dict[str, float]]]:
+    """Draw a law smooth in phi and every jump's bed, and simulate by the oracle.
+
+    The replicate of a ``quadratic`` fit: the law's coefficients, the scatter and the
+    robot's calibrated parameters are drawn from the priors the fit uses; each jump's bed
+    has its own true phi, ``Normal(its written phi, phi_sd)`` (``[bed] phi_sd``; the
+    written phi itself without one), drawn whatever ``settings.bed_phi`` says (a lab's
+    beds are what they are; the setting is how the fit treats them, so ``bed_phi=
+    "measured"`` measures the coverage of a fit that ignores them). The jump is
+    simulated at its bed's phi with the law there, by the independent oracle
+    (:func:`granbayes.testing.replicate_measurements`), so the integration over the
+    beds in the fit's likelihood (a spline over 9 volume fractions and a quadrature) is
+    checked against data it did not make. A draw with a jump that does not finish is
+    drawn again (law and beds), as in :func:`draw_replicate`.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        Robot, command defaults, ``phi_c`` and ``phi_sd``.
+    design : pandas.DataFrame
+        The jumps table of the experiment; its heights are replaced.
+    settings : FitSettings
+        Terms, noise family and fixed parameters (``quadratic`` mode).
+    priors : mapping of str to Prior
+        The priors to draw from.
+    rng : numpy.random.Generator
+        Source of randomness (the law, the beds, then the oracle's noise).
+
+    Returns
+    -------
+    table : pandas.DataFrame
+        ``design`` with SYNTHETIC ``height_mm`` [mm]; ``phi`` stays the written one.
+    truths : dict
+        Written phi -> parameter name -> true value there (the law [SI], the robot's
+        calibrated parameters, ``sigma_mm``).
+
+    Raises
+    ------
+    RuntimeError
+        If no draw in 200 gives jumps that all finish.
+    """
+    from .testing import replicate_measurements  # the oracle makes the data
+
+    table = design.reset_index(drop=True).copy()
+    drawn = dataclasses.replace(settings, calibration="sample")
+    ((_, model, _),) = part_models(experiment, table, drawn, priors)
+    written = table["phi"].to_numpy(float)
+    phis = [float(p) for p in model.phis]
+    names = (*model.parameters, *model.calibrated, "sigma_mm")
+    for _ in range(_MAX_PRIOR_TRIES):
+        u, _ = _draw_prior(model, rng)
+        beds = written + experiment.phi_sd * rng.standard_normal(len(table))
+        law = model.law_values(u, beds)
+        values = model.parameter_values(u)
+        robot = {name: float(v[0]) for name, v in model.calibration_values(u).items()}
+        sigma = {phi: float(values["sigma_mm"][0, i]) for i, phi in enumerate(phis)}
+        at_beds = {
+            float(bed): {
+                **{name: float(v[0, j]) for name, v in law.items()},
+                **robot,
+                "sigma_mm": sigma[min(phis, key=lambda p, w=written[j]: abs(p - w))],
+            }
+            for j, bed in enumerate(beds)
+        }
+        made = replicate_measurements(
+            experiment,
+            {"heights": table.assign(phi=beds)},
+            at_beds,
+            rng=rng,
+            noise=settings.noise,
+            nu=settings.nu,
+        )["heights"]
+        if np.all(np.isfinite(made["true_height_mm"].to_numpy(float))):
+            break
+    else:
+        raise RuntimeError(
+            f"none of {_MAX_PRIOR_TRIES} draws of the law and the beds gave jumps that all "
+            "finish; narrow the priors"
+        )
+    table["height_mm"] = made["height_mm"].to_numpy(float)
+    truths = {
+        phi: {name: float(values[name][0, i]) for name in names} for i, phi in enumerate(phis)
+    }
+    return table, truths
 
 
 def draw_measurements(
@@ -315,6 +411,18 @@ def _log_prob_at(model, truth: Mapping[str, float]) -> float:
     return float(model(u)[0][0])
 
 
+def _ranked_columns(parts: Sequence[FitPart]) -> list[tuple[FitPart, int, float]]:
+    """Each run with each of its volume fractions (the column of its values there).
+
+    A ``per_phi`` run has one; a ``quadratic`` run all of them, whose values are
+    functions of the same draws (ranks of any function of the parameters are uniform
+    under a calibrated posterior).
+    """
+    return [
+        (part, column, float(phi)) for part in parts for column, phi in enumerate(part.model.phis)
+    ]
+
+
 def replicate_ranks(
     experiment: Experiment,
     design: pd.DataFrame | Measurements,
@@ -351,18 +459,20 @@ def replicate_ranks(
         no convergence check of the run can see.
     """
     truth_seed, fit_seed = spawn_seeds(seed, 2)
-    draw = draw_measurements if isinstance(design, Measurements) else draw_replicate
+    if isinstance(design, Measurements):
+        draw = draw_measurements
+    else:
+        draw = draw_beds if settings.phi_mode == "quadratic" else draw_replicate
     table, truths = draw(experiment, design, settings, priors, np.random.default_rng(truth_seed))
     result = fit(experiment, table, settings, seed=fit_seed, priors=priors)
     rows = []
-    for part in result.parts:
-        phi = float(part.model.phis[0])
+    for part, column, phi in _ranked_columns(result.parts):
         draws_u, independent = rank_draws(part, n_rank_draws)
         values = part.model.parameter_values(draws_u)
-        lp_truth = _log_prob_at(part.model, truths[phi])
+        lp_truth = _log_prob_at(part.model, truths[phi])  # NaN for a quadratic run
         lp_max = float(np.max(part.run.log_prob))
         for name in truths[phi]:
-            draws = values[name][:, 0]
+            draws = values[name][:, column]
             true = truths[phi][name]
             rows.append(
                 {
@@ -555,14 +665,16 @@ def run_sbc(
         Robot, command defaults and ``phi_c``.
     design : pandas.DataFrame or Measurements
         The experiment's jumps (:func:`granbayes.load_jumps`): which jumps to simulate,
-        by the fitting kernel (:func:`draw_replicate`); or its measurements of several
+        by the fitting kernel (:func:`draw_replicate`; in ``quadratic`` mode by the
+        oracle, each jump on its own bed: :func:`draw_beds`); or its measurements of several
         kinds (:func:`granbayes.load_measurements`): jumps, tracked jumps and intrusion
         tests, simulated by the independent oracle with every kind's noise drawn from its
         prior (:func:`draw_measurements`), for the calibration of a joint fit.
     out : str or Path
         Output folder (built as ``OUT.partial``; replaced only at the end).
     settings : FitSettings, optional
-        Terms and sampler settings of the fits (``phi_mode="per_phi"``).
+        Terms and sampler settings of the fits (``quadratic`` ``phi_mode`` with jump
+        heights only: the ranks are of the law's values at each written phi).
     n_replicates : int
         Number of replicates (each a prior draw, a simulation and a fit).
     seed : int
@@ -599,13 +711,18 @@ def run_sbc(
     ------
     ValueError
         Bad arguments (``n_replicates < 1``, ``n_rank_draws`` out of range, quadratic
-        ``phi_mode``, empty design).
+        ``phi_mode`` with measurements of several kinds, empty design).
     granbayes.campaign.CampaignError
         Unreachable scheduler, or resume of another study; nothing is written then.
     """
     settings = settings or FitSettings(terms=("depth", "drag"))
-    if settings.phi_mode != "per_phi":
-        raise ValueError(f"phi_mode must be 'per_phi' for SBC, got {settings.phi_mode!r}")
+    if isinstance(design, Measurements) and design.kinds == ("heights",):
+        design = design.tables["heights"]  # heights alone: the kernel's replicates, as ever
+    if settings.phi_mode != "per_phi" and isinstance(design, Measurements):
+        raise ValueError(
+            "SBC of a quadratic fit takes jump heights alone (a design of several kinds "
+            f"needs phi_mode 'per_phi'), got phi_mode {settings.phi_mode!r}"
+        )
     if int(n_replicates) < 1:
         raise ValueError(f"n_replicates must be >= 1, got {n_replicates}")
     s = settings.sampler
@@ -615,8 +732,6 @@ def run_sbc(
             f"n_rank_draws must be in [1, walkers x ensembles x n_draws = {kept}], "
             f"got {n_rank_draws}"
         )
-    if isinstance(design, Measurements) and design.kinds == ("heights",):
-        design = design.tables["heights"]  # heights alone: the kernel's replicates, as ever
     n_units = design.n_units if isinstance(design, Measurements) else len(design)
     if n_units == 0:
         raise ValueError("design has no jumps")
@@ -642,13 +757,19 @@ def run_sbc(
     if isinstance(design, Measurements):
         description["kinds"] = list(design.kinds)
         description["generator"] = "granbayes.testing.replicate_measurements (the oracle)"
+    elif settings.phi_mode == "quadratic":
+        description["generator"] = (
+            "granbayes.testing.replicate_measurements (the oracle), each jump on its own bed"
+        )
+        description["phi_sd"] = experiment.phi_sd
     if experiment.uncertainty:  # the robot's calibration the truths are drawn from
         description["calibration_sd"] = dict(sorted(experiment.uncertainty.items()))
-    if experiment.phi_sd > 0 and log is not None:
+    if experiment.phi_sd > 0 and settings.phi_mode == "per_phi" and log is not None:
         log(
             f"[bed] phi_sd = {experiment.phi_sd:g} is not drawn: SBC's laws are drawn per "
             "volume fraction with no slope in phi, so a bed's phi would change only the "
-            "added mass (quadratic fits integrate it; their SBC is not built)"
+            "added mass (quadratic fits integrate it: run their SBC with phi_mode "
+            "'quadratic')"
         )
     seeds = spawn_seeds(seed, int(n_replicates))
     tasks = [

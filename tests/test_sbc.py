@@ -24,11 +24,17 @@ import pandas as pd
 import pytest
 from distributed import Client
 
-from granbayes import default_priors, load_experiment, load_jumps, load_measurements
+from granbayes import (
+    Experiment,
+    default_priors,
+    load_experiment,
+    load_jumps,
+    load_measurements,
+)
 from granbayes._cli import EXIT_INPUT, EXIT_OK, main
 from granbayes._fitting import FitSettings, part_models
 from granbayes._sampler import SamplerSettings
-from granbayes._sbc import draw_measurements, run_sbc
+from granbayes._sbc import draw_beds, draw_measurements, replicate_ranks, run_sbc
 from granbayes.campaign import ClusterSettings, spawn_seeds
 from granbayes.stats import summarize_ranks
 from granbayes.testing import (
@@ -37,6 +43,7 @@ from granbayes.testing import (
     replicate_measurements,
     simulate_height_scipy,
     simulate_trajectory_scipy,
+    synthetic_jumps,
     synthetic_lab_data,
     write_lab_experiment,
 )
@@ -580,3 +587,103 @@ def test_start_modes_of_a_replicate_record_every_climb(joint_design: Path) -> No
     anchors = np.array([float(v) for v in rows[0]["anchor_ends"].split(";")])
     assert anchors.size == FAST_CONFIG.sampler.n_ensembles
     assert anchors.max() > rows[0]["log_prob_truth"] - 5.0
+
+
+# ----------------------------------------------------------------------------------------
+# (g) a quadratic fit's replicates: every jump on its own bed, made by the oracle
+# ----------------------------------------------------------------------------------------
+QUADRATIC = FitSettings(
+    terms=("depth", "drag"),
+    phi_mode="quadratic",
+    sigma_mode="global",
+    sampler=SamplerSettings(n_walkers=8, check_every=60, max_steps=60, n_draws=60),
+)
+
+
+@pytest.fixture(scope="module")
+def bed_design() -> pd.DataFrame:
+    """3 volume fractions x 5 commands x 2 trials (SYNTHETIC design; heights replaced)."""
+    return synthetic_jumps(
+        {"k": 3000.0}, 2.0, seed=1, phis=(0.602, 0.612, 0.622), trials=2, settings_columns=True
+    )
+
+
+@pytest.mark.parametrize("phi_sd", [0.0, 0.004])
+def test_a_quadratic_replicate_puts_every_jump_on_its_own_bed(
+    bed_design: pd.DataFrame, phi_sd: float, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The oracle simulates each jump at its bed's phi (Normal(written, phi_sd)) with the
+    drawn law there; the law is one quadratic (in each prior's coordinate) through the beds and
+    the truths at the written volume fractions; the table keeps the written phi."""
+    import granbayes.testing
+
+    seen = {}
+    oracle = granbayes.testing.replicate_measurements
+
+    def spy(experiment, tables, truth, **kwargs):
+        seen["beds"] = tables["heights"]["phi"].to_numpy(float)
+        seen["truth"] = truth
+        made = oracle(experiment, tables, truth, **kwargs)
+        seen["true_height_mm"] = made["heights"]["true_height_mm"].to_numpy(float)
+        return made
+
+    monkeypatch.setattr(granbayes.testing, "replicate_measurements", spy)
+    experiment = Experiment().replace(phi_sd=phi_sd)
+    table, truths = draw_beds(
+        experiment, bed_design, QUADRATIC, default_priors(), np.random.default_rng(4)
+    )
+    written = bed_design["phi"].to_numpy(float)
+    np.testing.assert_array_equal(table["phi"].to_numpy(float), written)
+    pd.testing.assert_frame_equal(
+        table.drop(columns="height_mm"), bed_design.drop(columns="height_mm")
+    )
+    beds = seen["beds"]
+    if phi_sd == 0.0:
+        np.testing.assert_array_equal(beds, written)
+    else:  # 30 beds: the sd of their offsets is within 4 SE (SE ~ phi_sd / sqrt(60))
+        offsets = beds - written
+        assert np.all(offsets != 0.0)
+        assert abs(offsets.std() / phi_sd - 1.0) < 4 / np.sqrt(2 * len(beds))
+    priors = default_priors()
+    for name in ("k", "c_d"):  # quadratic in the coordinate of the parameter's prior
+        to_u = priors[name].to_u
+        at_beds = np.array([float(to_u(np.asarray(seen["truth"][float(b)][name]))) for b in beds])
+        coef = np.polyfit(beds - experiment.phi_c, at_beds, 2)
+        np.testing.assert_allclose(np.polyval(coef, beds - experiment.phi_c), at_beds, atol=1e-9)
+        for phi, values in truths.items():
+            assert np.polyval(coef, phi - experiment.phi_c) == pytest.approx(
+                float(to_u(np.asarray(values[name]))), abs=1e-6
+            )
+    sigma = {values["sigma_mm"] for values in truths.values()}
+    assert len(sigma) == 1 and {t["sigma_mm"] for t in seen["truth"].values()} == sigma
+    noise = table["height_mm"].to_numpy(float) - seen["true_height_mm"]
+    assert np.all(np.isfinite(noise)) and np.all(noise != 0.0)
+
+
+def test_sbc_of_a_quadratic_fit_takes_jump_heights_alone(
+    tmp_path: Path, joint_design: Path
+) -> None:
+    experiment = load_experiment(joint_design)
+    measurements = load_measurements(joint_design, experiment)
+    with pytest.raises(ValueError, match="jump heights alone"):
+        run_sbc(experiment, measurements, tmp_path / "out", settings=QUADRATIC, n_replicates=1)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "out.partial").exists()
+
+
+def test_a_quadratic_replicate_ranks_the_law_at_every_written_phi(
+    bed_design: pd.DataFrame,
+) -> None:
+    """One capped replicate (not a calibration study): a rank per written phi and
+    parameter, from one run's draws."""
+    experiment = Experiment().replace(phi_sd=0.002)
+    small = bed_design[bed_design["command"].isin(["single", "stutter"])]
+    rows = pd.DataFrame(
+        replicate_ranks(experiment, small, QUADRATIC, default_priors(), 19, 0, seed=3)
+    )
+    assert len(rows) == 3 * len(PARAMETERS)
+    assert set(rows["phi"]) == {0.602, 0.612, 0.622}
+    assert set(rows["parameter"]) == set(PARAMETERS)
+    assert rows["rank"].between(0, 19).all() and (rows["n_steps"] == 60).all()
+    assert rows["log_prob_truth"].isna().all()  # coordinates are coefficients
+    per_phi = rows.pivot(index="phi", columns="parameter", values="true_value")
+    assert per_phi["sigma_mm"].nunique() == 1 and per_phi["k"].nunique() == 3
