@@ -633,6 +633,28 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="continue an interrupted run from its checkpoints in OUT.partial/chains/",
     )
+    _add_phi_arguments(parser)
+    parser.add_argument(
+        "--noise",
+        choices=("normal", "student_t"),
+        default="normal",
+        help="scatter of a jump about its simulated height: Gaussian (default) or Student-t "
+        "with --nu degrees of freedom (heavy tails: robust to outlying jumps)",
+    )
+    parser.add_argument("--nu", type=float, default=4.0, help="Student-t degrees of freedom")
+    _add_kinds_argument(parser)
+    parser.add_argument(
+        "--compare-commands",
+        action="store_true",
+        help="also fit each command separately and compare by PSIS-LOO",
+    )
+    parser.add_argument(
+        "--truth", type=Path, help="truth.toml of synthetic data, overlaid on figures"
+    )
+
+
+def _add_phi_arguments(parser: argparse.ArgumentParser) -> None:
+    """How the law depends on phi, the beds and the scatter (``fit`` and ``sbc``)."""
     parser.add_argument(
         "--phi-mode",
         choices=("per_phi", "quadratic"),
@@ -648,27 +670,10 @@ def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
         "quadrature (default), or taken as measured",
     )
     parser.add_argument(
-        "--noise",
-        choices=("normal", "student_t"),
-        default="normal",
-        help="scatter of a jump about its simulated height: Gaussian (default) or Student-t "
-        "with --nu degrees of freedom (heavy tails: robust to outlying jumps)",
-    )
-    parser.add_argument("--nu", type=float, default=4.0, help="Student-t degrees of freedom")
-    parser.add_argument(
         "--sigma",
         choices=("per_phi", "global"),
         default="per_phi",
         help="scatter per volume fraction or global (quadratic mode)",
-    )
-    _add_kinds_argument(parser)
-    parser.add_argument(
-        "--compare-commands",
-        action="store_true",
-        help="also fit each command separately and compare by PSIS-LOO",
-    )
-    parser.add_argument(
-        "--truth", type=Path, help="truth.toml of synthetic data, overlaid on figures"
     )
 
 
@@ -1223,6 +1228,7 @@ def _add_sbc_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--replicates", type=int, required=True, help="number of SBC replicates (fits)"
     )
+    _add_phi_arguments(parser)
     _add_kinds_argument(parser)
     parser.add_argument(
         "--rank-draws",
@@ -1268,7 +1274,14 @@ def run_sbc_command(args: argparse.Namespace) -> int:
         n_walkers=args.walkers, n_ensembles=args.ensembles, max_steps=args.max_steps
     )
     try:
-        config = FitSettings(terms=terms, sampler=sampler, calibration=args.calibration)
+        config = FitSettings(
+            terms=terms,
+            sampler=sampler,
+            calibration=args.calibration,
+            phi_mode=args.phi_mode,
+            sigma_mode=args.sigma,
+            bed_phi=args.bed_phi,
+        )
     except ValueError as exc:
         raise UsageError(f"--terms {args.terms}: {exc}") from None
     if args.replicates < 1:
@@ -1289,6 +1302,11 @@ def run_sbc_command(args: argparse.Namespace) -> int:
         raise UsageError(f"--connect-timeout {args.connect_timeout}: must be > 0")
     experiment = load_experiment(args.data)
     design = _load_measurements(args, experiment)  # run_sbc takes heights alone as a table
+    if args.phi_mode == "quadratic" and design.kinds != ("heights",):
+        raise UsageError(
+            "--phi-mode quadratic: SBC of a quadratic fit takes jump heights alone "
+            f"({args.data} has {', '.join(design.kinds)}; add --data heights)"
+        )
     priors = load_priors(args.priors) if args.priors else None
     log = (lambda _m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     try:

@@ -687,3 +687,15 @@ def test_a_quadratic_replicate_ranks_the_law_at_every_written_phi(
     assert rows["log_prob_truth"].isna().all()  # coordinates are coefficients
     per_phi = rows.pivot(index="phi", columns="parameter", values="true_value")
     assert per_phi["sigma_mm"].nunique() == 1 and per_phi["k"].nunique() == 3
+
+
+def test_sbc_cli_refuses_a_quadratic_fit_of_several_kinds(
+    tmp_path: Path, joint_design: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "sbc"
+    argv = ["sbc", str(joint_design), "--out", str(out), "--replicates", "1"]
+    assert main([*argv, "--phi-mode", "quadratic", *FAST]) == EXIT_INPUT
+    err = capsys.readouterr().err
+    assert "takes jump heights alone" in err and "--data heights" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists() and not (tmp_path / "sbc.partial").exists()
