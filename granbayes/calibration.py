@@ -2097,7 +2097,8 @@ def _paired_loo(fits: Mapping[str, Any], truth: str, rival: str) -> tuple[float,
     from . import stats as gstats
 
     loos = {n: gstats.loo(fits[n].datatree) for n in (truth, rival)}
-    d, se = gstats.elpd_difference(loos[truth]["elpd_i"], loos[rival]["elpd_i"])
+    strata = gstats.unit_kinds(fits[truth].datatree)
+    d, se = gstats.elpd_difference(loos[truth]["elpd_i"], loos[rival]["elpd_i"], strata)
     return d, se, max(float(loos[n]["max_pareto_k"]) for n in loos)
 
 

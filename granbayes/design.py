@@ -540,9 +540,10 @@ def _loo_evidence(saved: Mapping[str, SavedFit]) -> dict[tuple[str, str], tuple[
     from . import stats
 
     loos = {law: stats.loo(s.datatree)["elpd_i"] for law, s in saved.items()}
+    strata = stats.unit_kinds(next(iter(saved.values())).datatree)
     out = {}
     for t, r in itertools.combinations(saved, 2):
-        d, se = stats.elpd_difference(loos[t], loos[r])
+        d, se = stats.elpd_difference(loos[t], loos[r], strata)
         out[(t, r)] = (float(d), float(se))
     return out
 

@@ -239,6 +239,12 @@ def test_joint_fit_cli_keeps_every_kind_on_its_own_dims(
     assert set(ll.data_vars) == {"height_mm", "tracked_jump", "intrusion"}
     assert ll["tracked_jump"].dims[-1] == "trajectory" and ll.sizes["trajectory"] == 2
     assert ll["intrusion"].dims[-1] == "test" and ll.sizes["test"] == 4
+    # the units' kinds (the strata of diagnose's paired SEs) in the pointwise order
+    from granbayes.stats import unit_kinds
+
+    names = {"heights": "height_mm", "trajectories": "tracked_jump", "intrusions": "intrusion"}
+    units = load_measurements(lab_folder, load_experiment(lab_folder)).units
+    assert [names[k] for k in units["kind"]] == unit_kinds(dt).tolist()
     obs = dt["observed_data"].to_dataset()
     for name in ("height_mm", "x_foot_mm", "x_rod_mm", "force_N"):
         assert name in obs, name

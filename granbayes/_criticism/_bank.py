@@ -80,6 +80,9 @@ class FitBank:
         self.data = _as_measurements(table)
         #: One row per unit of leave-one-out: ``kind``, ``unit``, ``phi``, ``command``.
         self.units = self.data.units
+        #: The kind of every unit: the strata of every paired ELPD difference's SE
+        #: (:func:`granbayes.stats.elpd_difference`), in the order of the fits' units.
+        self.strata = self.units["kind"].to_numpy()
         self.priors, self.seed, self.data_source, self.log = priors, seed, data_source, log
         self.progress = progress
         self.fits: dict[tuple[str, ...], FitResult] = {}
@@ -185,7 +188,9 @@ class FitBank:
             result, reruns = self._run(key, parent_key, 1), reruns + 1
         loo = stats.loo(result.datatree)
         if parent_key is not None and reruns == 0:
-            diff, se = stats.elpd_difference(loo["elpd_i"], self.loos[parent_key]["elpd_i"])
+            diff, se = stats.elpd_difference(
+                loo["elpd_i"], self.loos[parent_key]["elpd_i"], self.strata
+            )
             if diff < -(self.settings.nested_tolerance + 2.0 * se):
                 notes.append(
                     f"ELPD {diff:+.1f} ± {se:.1f} below its nested parent "

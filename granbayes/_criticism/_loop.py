@@ -135,8 +135,10 @@ def _score_round(
             )
             continue
         res = bank.get(key, parent=current)
-        gain, se = stats.elpd_difference(loos[key]["elpd_i"], loos[current]["elpd_i"])
-        vs_base, vs_base_se = stats.elpd_difference(loos[key]["elpd_i"], loos[base]["elpd_i"])
+        gain, se = stats.elpd_difference(loos[key]["elpd_i"], loos[current]["elpd_i"], bank.strata)
+        vs_base, vs_base_se = stats.elpd_difference(
+            loos[key]["elpd_i"], loos[base]["elpd_i"], bank.strata
+        )
         flagged = bool(loos[key]["n_bad_k"] or loos[current]["n_bad_k"])
         cand = Candidate(
             term=term,
@@ -168,8 +170,8 @@ def _score_round(
         )
         if decisive and cand.estimate is Estimate.PSIS_FLAGGED:
             (e_key, e_cur, e_base), method = pointwise((key, current, base))
-            gain, se = stats.elpd_difference(e_key, e_cur)
-            vs_base, vs_base_se = stats.elpd_difference(e_key, e_base)
+            gain, se = stats.elpd_difference(e_key, e_cur, bank.strata)
+            vs_base, vs_base_se = stats.elpd_difference(e_key, e_base, bank.strata)
             cand = replace(
                 cand,
                 elpd=float(np.sum(e_key)),
@@ -203,11 +205,13 @@ def _versus_chosen(
             out.append(c)
             continue
         other = terms_of((*current, c.term))
-        diff, se = stats.elpd_difference(loos[key]["elpd_i"], loos[other]["elpd_i"])
+        diff, se = stats.elpd_difference(
+            loos[key]["elpd_i"], loos[other]["elpd_i"], pointwise.bank.strata
+        )
         far = diff > 2.0 * cfg.min_gain and diff > 2.0 * cfg.se_factor * se
         if not far:
             (e_chosen, e_other), _ = pointwise((key, other))
-            diff, se = stats.elpd_difference(e_chosen, e_other)
+            diff, se = stats.elpd_difference(e_chosen, e_other, pointwise.bank.strata)
         out.append(replace(c, vs_selected=diff, vs_selected_se=se))
     return out
 
@@ -349,7 +353,7 @@ def _record(
         cell_gain, cell_gain_se = 0.0, 0.0
     else:
         (e_cur, e_base), gain_method = pointwise((current, base))
-        gain, gain_se = stats.elpd_difference(e_cur, e_base)
+        gain, gain_se = stats.elpd_difference(e_cur, e_base, bank.strata)
         cell_cur, cell_base = stats.cell_loo(selected.datatree), stats.cell_loo(baseline.datatree)
         cell_gain, cell_gain_se = stats.elpd_difference(cell_cur["elpd_i"], cell_base["elpd_i"])
     heights_before = before[before["kind"] == "heights"].dropna(axis=1, how="all")

@@ -16,7 +16,8 @@ from here.
   (phases of tracked jumps, depth bins of intrusion curves): :func:`trajectory_cells`,
   :func:`intrusion_cells`, :func:`predictive_cells`.
 * Predictive accuracy: :func:`loo` (every unit of every kind of measurement:
-  :func:`unit_log_likelihood`, :func:`unit_phi_name`), :func:`elpd_difference`, :func:`compare`,
+  :func:`unit_log_likelihood`, :func:`unit_phi_name`, :func:`unit_kinds`),
+  :func:`elpd_difference` (stratified by kind where there are several), :func:`compare`,
   :func:`cell_loo`, :func:`loo_pit`, :func:`pit_uniformity`, and the fallback for
   unreliable PSIS, :func:`moment_match` (Paananen et al. 2021, batched over observations).
 * Summaries: :func:`summary_table`, :func:`run_diagnostics`, :func:`by_ensemble`,
@@ -47,6 +48,7 @@ from ._loo import (
     loo,
     loo_pit,
     pit_uniformity,
+    unit_kinds,
     unit_log_likelihood,
     unit_phi_name,
 )
@@ -109,6 +111,7 @@ __all__ = [
     "spearman_rows",
     "summarize_ranks",
     "trajectory_cells",
+    "unit_kinds",
     "unit_log_likelihood",
     "unit_phi_name",
     "summary_table",

@@ -135,15 +135,29 @@ def _good_k(n_samples: int) -> float:
     return float(min(1.0 - 1.0 / np.log10(n_samples), 0.7)) if n_samples > 1 else 0.7
 
 
-def elpd_difference(elpd_i_a: np.ndarray, elpd_i_b: np.ndarray) -> tuple[float, float]:
+def elpd_difference(
+    elpd_i_a: np.ndarray, elpd_i_b: np.ndarray, strata: np.ndarray | None = None
+) -> tuple[float, float]:
     """ELPD difference ``a - b`` and its standard error from pointwise values.
 
-    ``se = sqrt(n var(elpd_i_a - elpd_i_b))`` (Vehtari, Gelman & Gabry 2017, eq. 24).
+    ``se = sqrt(n var(elpd_i_a - elpd_i_b))`` (Vehtari, Gelman & Gabry 2017, eq. 24): the
+    units as draws from one population. With ``strata`` (the kind of measurement of each
+    unit, :func:`unit_kinds`) of more than one kind, ``se = sqrt(sum_k n_k var_k)``: the
+    stratified form, for a design that fixes how many units of each kind it has (so many
+    jumps, so many tracked jumps), with ``var_k`` each kind's sample variance (divided by
+    ``n_k - 1``: a kind may hold a handful of units; one unit adds nothing). The pooled
+    form would also count the spread *between* the kinds' mean differences as sampling
+    error: a tracked jump carries hundreds of frames and gains hundreds of nats where a
+    jump height gains a few, and pooled, that difference in kind inflates the SE until a
+    gain of thousands of nats fails the rule's 2 SE (``tests/test_elpd_difference.py``
+    measures both). With one kind (or none given) the SE is the pooled one, as before.
 
     Parameters
     ----------
     elpd_i_a, elpd_i_b : ndarray
-        Pointwise ELPD [nats] of two models on the same jumps.
+        Pointwise ELPD [nats] of two models on the same units.
+    strata : ndarray, optional
+        A label per unit (its kind).
 
     Returns
     -------
@@ -151,7 +165,36 @@ def elpd_difference(elpd_i_a: np.ndarray, elpd_i_b: np.ndarray) -> tuple[float, 
         The difference and its standard error [nats].
     """
     d = np.asarray(elpd_i_a, dtype=float) - np.asarray(elpd_i_b, dtype=float)
-    return float(np.sum(d)), float(np.sqrt(d.size * np.var(d)))
+    labels = None if strata is None else np.asarray(strata)
+    if labels is None or np.unique(labels).size < 2:
+        return float(np.sum(d)), float(np.sqrt(d.size * np.var(d)))
+    if labels.shape != d.shape:
+        raise ValueError(f"strata has {labels.size} labels for {d.size} units")
+    var = 0.0
+    for level in np.unique(labels):
+        part = d[labels == level]
+        if part.size > 1:  # the sample variance: a stratum may hold a handful of units
+            var += part.size * float(np.var(part, ddof=1))
+    return float(np.sum(d)), float(np.sqrt(var))
+
+
+def unit_kinds(dt: xr.DataTree) -> np.ndarray:
+    """The kind of measurement of every unit, in :func:`unit_log_likelihood`'s order.
+
+    Parameters
+    ----------
+    dt : xarray.DataTree
+        A fit.
+
+    Returns
+    -------
+    ndarray of str, shape (n_units,)
+        The name of the unit's ``log_likelihood`` variable (``height_mm``, ...).
+    """
+    ll = dt["log_likelihood"].to_dataset()
+    return np.concatenate(
+        [np.full(ll[name].sizes[ll[name].dims[-1]], str(name)) for name in ll.data_vars]
+    )
 
 
 def compare(models: Mapping[str, xr.DataTree]) -> pd.DataFrame:
