@@ -1707,7 +1707,8 @@ def power_case(
     Parameters
     ----------
     kind : str
-        A library term or an out-of-library effect (:data:`POWER_SIZES`).
+        A library term or an out-of-library effect (:data:`POWER_SIZES`), or ``null``
+        (no effect, ``size`` 0: the false-alarm arm of the same designs).
     size : float
         The effect's value (the term's parameter [SI] or the out-of-library strength).
     index : int
@@ -1726,13 +1727,17 @@ def power_case(
     list of dict
         One row (with tracking: ``n_tracked`` and ``n_frames`` as well).
     """
-    if kind == "null":
-        raise ValueError("a power curve needs an effect: kind 'null' has none")
+    if kind == "null" and size != 0.0:
+        raise ValueError(f"kind 'null' has no effect: its size is 0, got {size!r}")
     case_seed, diag_seed = (
         int(c.generate_state(1)[0]) for c in np.random.SeedSequence(seed).spawn(2)
     )
-    case = make_case(kind, case_seed, size=size, design=POWER_DESIGN, tracking=tracking)
-    extra: dict[str, Any] = {"size": float(size), **effect_size(case)}
+    null = kind == "null"
+    case = make_case(
+        kind, case_seed, size=None if null else size, design=POWER_DESIGN, tracking=tracking
+    )
+    sized = {"effect_rms_mm": 0.0, "effect_snr": 0.0} if null else effect_size(case)
+    extra: dict[str, Any] = {"size": float(size), **sized}
     if case.trajectories is not None:
         extra["n_tracked"] = int(case.trajectories["jump"].nunique())
         extra["n_frames"] = len(case.trajectories)
@@ -1744,7 +1749,7 @@ def power_case(
         diag_seed,
         step_budget,
         extra,
-        size=size,
+        size=None if null else size,
         design=POWER_DESIGN,
     )
 

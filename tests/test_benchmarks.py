@@ -98,3 +98,32 @@ def test_the_tracked_power_study_pairs_each_case_with_its_heights_only_twin(
     tracked.loc[0, "sigma_mm"] += 0.1
     with pytest.raises(ValueError, match="not the same draw"):
         power.paired_with_heights(tracked, heights)
+
+
+def test_the_null_arm_of_the_power_study(benchmarks_on_path, tmp_path) -> None:
+    """Its tasks are null cases with seeds apart from every kind's; its summary counts
+    the terms named and the misfits left, with exact intervals; a null case with a size
+    is refused."""
+    import json
+
+    import pandas as pd
+
+    power = importlib.import_module("power_curves")
+    todo = power.null_tasks(3, 5, tracked=True)
+    assert [t.task_id for t in todo] == ["null-000", "null-001", "null-002"]
+    assert all(t.args == ("null", 0.0, i) for i, t in enumerate(todo))
+    assert all(t.kwargs == {"tracking": power.POWER_TRACKING} for t in todo)
+    effect_seeds = {t.seed for t in power.tasks(list(power.POWER_SIZES), 3, 5)}
+    assert not effect_seeds & {t.seed for t in todo}
+    with pytest.raises(ValueError, match="size is 0"):
+        power.power_case("null", 1.0, 0, seed=1)
+    rows = pd.read_csv(BENCHMARKS / "results" / "power" / "results.csv").head(4).copy()
+    rows["verdict"] = ["baseline_adequate", "extended", "misfit_remains", "baseline_adequate"]
+    rows["added"] = ["", "drag", "", ""]
+    power.write_null_summary(tmp_path, rows, 5, 10, tracked=False)
+    doc = json.loads((tmp_path / "summary.json").read_text())
+    assert doc["false_discovery"]["count"] == 1 and doc["false_alarm"]["count"] == 1
+    assert doc["false_discovery"]["lo"] == pytest.approx(0.00631, abs=1e-5)  # 1 of 4
+    assert doc["false_discovery"]["hi"] == pytest.approx(0.80588, abs=1e-5)
+    text = (tmp_path / "summary.md").read_text()
+    assert "a stopped study: 4 of 10" in text and "1 of 4" in text

@@ -667,7 +667,7 @@ def test_detection_sizes_recover_a_known_logistic_curve() -> None:
 
 def test_a_power_case_row_carries_its_size_and_design(monkeypatch) -> None:
     """``power_case``: the effect at the given size on a lab-like design, the effect's size
-    in the heights recorded; a null kind is refused."""
+    in the heights recorded; a null case has size 0 (any other is refused)."""
     import granbayes.calibration as calibration
 
     def stop(experiment, table, settings, *, seed, **kwargs):
@@ -679,8 +679,12 @@ def test_a_power_case_row_carries_its_size_and_design(monkeypatch) -> None:
     assert row["truth_effect"] == "c_comp=0.25"
     assert 2 <= len(row["phis"].split("/")) <= 5 and 2 <= row["trials"] <= 5
     assert row["effect_rms_mm"] > 0 and row["effect_snr"] > 0
-    with pytest.raises(ValueError, match="needs an effect"):
+    with pytest.raises(ValueError, match="size is 0"):
         calibration.power_case("null", 1.0, 0, seed=9)
+    (null,) = calibration.power_case("null", 0.0, 2, seed=9)  # the false-alarm arm
+    assert null["kind"] == "null" and null["size"] == 0.0 and null["index"] == 2
+    assert null["effect_rms_mm"] == 0.0 and null["effect_snr"] == 0.0
+    assert null["truth_effect"] == "" and null["verdict"] == "over_budget"
 
 
 def test_the_power_study_covers_every_size_with_distinct_seeds(monkeypatch) -> None:
