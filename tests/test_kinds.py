@@ -407,7 +407,9 @@ def test_hidden_viscous_is_found_when_every_trial_is_filmed(tmp_path: Path) -> N
     short (3.1 nats measured there, about 9 expected from three times the frames).
     Measured on its first run (2026-11-27, 409 s on 2 cores): viscous named with an ELPD
     gain of +30.8 +- 13.1 nats, 2 misfit cells; stiffening close behind (+25.8 +- 10.3,
-    not distinguished from viscous: +5.0 +- 3.4, which the diagnosis reports)."""
+    not distinguished from viscous: +5.0 +- 3.4, which the diagnosis reports). Rerun
+    2026-11-28 with the SE stratified by kind (74 s on a quiet 2-core machine): viscous
+    named, +33.2 +- 9.7 nats; stiffening screened out (+25.5 < 26.8)."""
     from granbayes._criticism import DiagnoseSettings, diagnose
 
     design = dataclasses.replace(HIDDEN_VISCOUS, tracked_trials=3)
