@@ -82,7 +82,7 @@ class FitBank:
         self.units = self.data.units
         #: The kind of every unit: the strata of every paired ELPD difference's SE
         #: (:func:`granbayes.stats.elpd_difference`), in the order of the fits' units.
-        self.strata = self.units["kind"].to_numpy()
+        self.strata = self.units["kind"].to_numpy() if len(self.units) else np.array([])
         self.priors, self.seed, self.data_source, self.log = priors, seed, data_source, log
         self.progress = progress
         self.fits: dict[tuple[str, ...], FitResult] = {}
