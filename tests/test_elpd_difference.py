@@ -5,7 +5,8 @@ heights alone the SE is the usual ``sqrt(n var(d))``. With tracked jumps (hundre
 frames each) or intrusion tests beside the heights, the units' differences come from
 populations of very different means, and the pooled SE counts that difference in kind as
 sampling error: measured in the power study of tracked designs, ``diagnose`` gained 4,268 +-
-2,431 nats from the true drag and did not add it. The stratified SE is the standard error of
+2,431 nats from the true drag and did not add it (4,268 +- 2,162 stratified: that case's
+evidence sits in one or two tracked jumps, README). The stratified SE is the standard error of
 a stratified sum (the design fixes how many units of each kind it has).
 """
 
