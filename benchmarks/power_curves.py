@@ -414,8 +414,13 @@ def write_summary(
             markdown_table(paired, ".3g", missing=""),
         ]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    note = (
-        f"STOPPED STUDY: {len(results)} of {n_planned} planned cases (a pilot)" if stopped else ""
+    note = "; ".join(
+        (
+            [f"STOPPED STUDY: {len(results)} of {n_planned} planned cases (a pilot)"]
+            if stopped
+            else []
+        )
+        + (["heights AND tracked jumps (POWER_TRACKING), fitted jointly"] if tracked else [])
     )
     figure(table, results, by_snr, note).savefig(out / "power.png", dpi=130)
 
