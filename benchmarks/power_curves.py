@@ -62,6 +62,7 @@ from granbayes.calibration import (
     POWER_SIZES,
     POWER_TRACKING,
     STEP_BUDGET,
+    clopper_pearson,
     detected,
     detection_sizes,
     power_case,
@@ -112,14 +113,11 @@ def write_null_summary(
     out: Path, results: pd.DataFrame, seed: int, n_planned: int, tracked: bool = False
 ) -> None:
     """summary.md and summary.json of the null arm: every verdict, with exact intervals."""
-    from scipy.stats import beta
-
     n = len(results)
 
     def rate(count: int) -> dict[str, float]:
-        lo = float(beta.ppf(0.025, count, n - count + 1)) if count else 0.0
-        hi = float(beta.ppf(0.975, count + 1, n - count)) if count < n else 1.0
-        return {"count": count, "n": n, "rate": count / n if n else math.nan, "lo": lo, "hi": hi}
+        lo, hi = clopper_pearson(count, n)
+        return {"count": count, "n": n, "rate": count / n, "lo": lo, "hi": hi}
 
     named = results["added"].fillna("").astype(str) != ""
     alarms = results["verdict"] == "misfit_remains"
@@ -304,7 +302,7 @@ def paired_with_heights(tracked: pd.DataFrame, heights: pd.DataFrame) -> pd.Data
         on="task_id",
         suffixes=("_tracked", "_heights"),
     )
-    if not np.allclose(both["sigma_mm_tracked"], both["sigma_mm_heights"], rtol=0, atol=0):
+    if not np.array_equal(both["sigma_mm_tracked"], both["sigma_mm_heights"]):
         raise ValueError("a tracked case and its heights-only case differ: not the same draw")
     both["only_tracked"] = both["hit_tracked"] & ~both["hit_heights"]
     both["only_heights"] = both["hit_heights"] & ~both["hit_tracked"]
