@@ -48,10 +48,13 @@ demo: $(BIN)/.installed
 # The fast suite and three hidden-effect cases (`ci_subset`: a null case, a hidden library
 # term, an effect outside the library) in one run, longest first (tests/conftest.py), so the
 # two workers finish together; `loadgroup` keeps each diagnosis on one worker.
+# Extra pytest arguments, e.g. `make test PYTEST_ARGS=--durations=40` (where the time goes).
+PYTEST_ARGS ?=
+
 test: $(BIN)/.installed
 	$(BIN)/ruff check $(LINTED)
 	$(BIN)/ruff format --check $(LINTED)
-	$(BIN)/python -m pytest -m "not slow or ci_subset" -n 2 --dist loadgroup
+	$(BIN)/python -m pytest -m "not slow or ci_subset" -n 2 --dist loadgroup $(PYTEST_ARGS)
 
 test-slow: $(BIN)/.installed
 	$(BIN)/python -m pytest -m slow -n 2 --dist loadgroup

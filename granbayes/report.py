@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import ConstrainedLayoutEngine
 
 from . import _datatree as gdt
 from . import figures, stats
@@ -280,7 +281,8 @@ def _kind_cell_lines(dt: xr.DataTree, kinds: list, out: Path, written: list[Path
     return lines
 
 
-#: How each figure is saved: ``savefig`` keywords by file name (default: 120 dpi, tight).
+#: How each figure is saved: ``savefig`` keywords by file name (default: 120 dpi, and a
+#: tight bounding box unless the figure lays itself out, see :func:`_save_figures`).
 _SAVE = {
     "prior_posterior.png": {"dpi": 110},
     "loo_pit.png": {"dpi": 110},
@@ -295,9 +297,13 @@ def _save_figures(figs: Mapping[str, Figure], out: Path) -> list[Path]:
 
     written = []
     for name, fig in figs.items():
-        fig.savefig(
-            out / name, format="png", **_SAVE.get(name, {"dpi": 120, "bbox_inches": "tight"})
-        )
+        kwargs = dict(_SAVE.get(name, {"dpi": 120, "bbox_inches": "tight"}))
+        if isinstance(fig.get_layout_engine(), ConstrainedLayoutEngine):
+            # constrained layout already fits every label inside the figure; a tight box
+            # would draw the whole figure a second time to measure it (a third of a fit
+            # report's time went to such draws)
+            kwargs.pop("bbox_inches", None)
+        fig.savefig(out / name, format="png", **kwargs)
         plt.close(fig)
         written.append(out / name)
     return written

@@ -852,7 +852,8 @@ def test_a_candidate_fit_climbs_from_its_screen() -> None:
     scatter 9 mm against 2.4) 27 nats below the truth's; warm-started from the depth law,
     6 of 10 fit seeds ended every ensemble there and passed every convergence check (seed
     0 here). From the screen's point each of them finds the truth's mode (measured: 6 of
-    6 seeds)."""
+    6 seeds); checked here on the same seed as the fit that misses it, so that the start
+    point is the one difference."""
     from granbayes._fitting import FitSettings, fit, screen_many
     from granbayes.calibration import make_case
 
@@ -873,12 +874,9 @@ def test_a_candidate_fit_climbs_from_its_screen() -> None:
 
     plain = fit(case.experiment, case.table, law, seed=0, warm_start=parent)
     assert best_log_lik(plain) < -110.0  # the worse mode
-    for seed in (0, 2):
-        found = fit(
-            case.experiment, case.table, law, seed=seed, warm_start=parent, start_points=points[0]
-        )
-        assert best_log_lik(found) > -95.0, seed
-        assert found.converged
+    found = fit(case.experiment, case.table, law, seed=0, warm_start=parent, start_points=points[0])
+    assert best_log_lik(found) > -95.0
+    assert found.converged
 
 
 def test_a_screened_out_candidate_is_listed_not_fitted(tmp_path: Path) -> None:

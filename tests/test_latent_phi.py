@@ -36,7 +36,9 @@ from granbayes.testing import LabDesign, synthetic_lab_data, write_lab_experimen
 pytestmark = pytest.mark.long
 
 PHI_SD = 0.002
-TINY = SamplerSettings(n_walkers=8, n_ensembles=2, check_every=50, max_steps=100, n_draws=30)
+TINY = SamplerSettings(
+    n_walkers=8, n_ensembles=2, check_every=50, max_steps=100, n_draws=30, start="search"
+)
 #: The fits of the wiring tests: quadratic laws, one scatter and one force noise, tiny runs.
 QUADRATIC = FitSettings(
     terms=("depth", "drag"),
