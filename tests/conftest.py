@@ -104,6 +104,36 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=rank)
 
 
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Under pytest-xdist, compile the numba kernels into numba's cache before the workers
+    start, the heights and the frames parts side by side (tests/compile_kernels.py).
+
+    Each kernel specialization takes 10-35 s to compile on a fresh clone, and numba's
+    cache is shared through the files only: two workers whose first tests need the same
+    specialization each compile it, and did (a fresh-clone run on a slow machine spent
+    ~150 s of its workers' time compiling, about twice the compilation itself). Runs in
+    the controlling process (this hook precedes pytest-xdist's, which starts the
+    workers); with a warm cache it only loads (~3 s). A part that fails is reported and
+    left to the tests, which then compile (and fail) on their own."""
+    config = session.config
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return
+    import subprocess
+    import sys
+
+    script = Path(__file__).with_name("compile_kernels.py")
+    parts = {
+        part: subprocess.Popen(
+            [sys.executable, str(script), part], stdout=subprocess.PIPE, stderr=subprocess.STDOUT
+        )
+        for part in ("heights", "frames")
+    }
+    for part, proc in parts.items():
+        output, _ = proc.communicate()
+        if proc.returncode:
+            print(f"tests/compile_kernels.py {part} failed:\n{output.decode(errors='replace')}")
+
+
 def pytest_configure(config):
     """Under pytest-xdist, one numba thread per worker (2 workers x 2 threads on 2 cores
     oversubscribe the machine); tests that ask for more threads explicitly still get them,

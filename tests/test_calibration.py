@@ -573,6 +573,7 @@ def test_power_designs_span_their_ranges() -> None:
     assert all(len(set(d["phis"])) == len(d["phis"]) for d in drawn)
 
 
+@pytest.mark.long
 def test_effect_size_vanishes_without_the_effect_and_grows_with_it() -> None:
     """No drag, no change; a weak drag changes the heights about in proportion (the first
     order of the energy it takes: ratio 2 within 10% for c_d 1 -> 2 kg/m); the SNR is the
@@ -712,6 +713,7 @@ def test_the_power_study_covers_every_size_with_distinct_seeds(monkeypatch) -> N
     assert all(t.kwargs["tracking"]["commands"] == ("single", "stutter") for t in tracked)
 
 
+@pytest.mark.long
 def test_a_tracked_case_keeps_its_heights_and_films_the_oracles_jumps() -> None:
     """With a tracking design: the heights are those of the case without it, bit for bit;
     the frames pass the user's checks; each filmed jump's noise-free frames are the

@@ -823,6 +823,7 @@ def test_screening_side_by_side_is_screening_one_by_one(drag_case) -> None:
     assert together == alone
 
 
+@pytest.mark.long
 def test_screening_finds_a_strong_unloading_below_its_off_value() -> None:
     """Unloading's "off" value (r_unload = 20) lies inside its prior range [1, 200], and a
     strong unloading bed has r_unload of 2-4: below it, where k must move too (k and
@@ -845,6 +846,7 @@ def test_screening_finds_a_strong_unloading_below_its_off_value() -> None:
     assert min(gains) > 100.0, gains
 
 
+@pytest.mark.long
 def test_a_candidate_fit_climbs_from_its_screen() -> None:
     """``fit(start_points=...)``: the first ensemble climbs from the screen's best point as
     well. On the verdict study's ``unloading-002`` (SYNTHETIC, oracle; r_unload = 2.23)

@@ -20,6 +20,7 @@ from the wheel, as the test checks. The wheel is built with ``--no-build-isolati
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -27,23 +28,32 @@ import sysconfig
 import zipfile
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from granbayes import simulate
 
 #: One module fixture (the installed wheel) for all its tests, so one xdist group (one
-#: worker); the jump and the fit take ~40 s, most of it the cold numba compilation of the
-#: new environment, which no cache of the source tree can spare. Run first
-#: (tests/conftest.py), beside the other worker's first compilation.
+#: worker). The fast tests stay clear of compiling the whole kernel in the new
+#: environment (~35 s, which no cache of the source tree can spare): a small kernel
+#: function stands for it, and the jump runs the installed kernel as plain Python; the
+#: slow test compiles it all, runs the demo and a fit.
 pytestmark = [pytest.mark.long, pytest.mark.xdist_group("install")]
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCES = ("pyproject.toml", "README.md", "LICENSE", "granbayes")
 
 
-def _run(args: list, cwd: Path, timeout: float = 600) -> subprocess.CompletedProcess:
+def _run(
+    args: list, cwd: Path, timeout: float = 600, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess:
     proc = subprocess.run(
-        [str(a) for a in args], cwd=cwd, capture_output=True, text=True, timeout=timeout
+        [str(a) for a in args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=None if env is None else {**os.environ, **env},
     )
     assert proc.returncode == 0, f"{args} -> {proc.returncode}\n{proc.stdout}\n{proc.stderr}"
     return proc
@@ -115,22 +125,57 @@ def test_installed_package_is_the_wheel(installed) -> None:
     assert out.strip() == f"granbayes {info['version']}"
 
 
-def test_a_jump_and_a_fit_from_the_wheel(installed) -> None:
-    """``granbayes simulate`` of one jump (the height the sources compute, bit for bit) and a
-    tiny ``granbayes fit`` of a SYNTHETIC folder cut from the shipped reference data (its
-    report included), run from a folder outside the repository.
-
-    ``granbayes demo`` is run from the wheel by the slow test below: its recorded
-    trajectories compile a second specialization of the kernel (~15 s on a new
-    environment) for a CLI the fast suite runs from the sources (``tests/test_cli.py``)."""
+def test_every_module_imports_and_the_kernel_compiles_where_installed(installed) -> None:
+    """Every module of the installed package imports (a subpackage left out of the wheel
+    fails here), and numba compiles a kernel function from the installed sources and
+    caches it beside them (``cache=True``: the sources must ship and their folder be
+    writable). One small function stands for the kernel: the whole kernel takes ~35 s
+    to compile in a new environment, the same mechanism (the slow test below runs it)."""
     _, bindir, work = installed
-    gb = bindir / "granbayes"
+    code = (
+        "import importlib, json, pkgutil, granbayes\n"
+        "names = [m.name for m in pkgutil.walk_packages(granbayes.__path__, 'granbayes.')]\n"
+        "for name in names: importlib.import_module(name)\n"
+        "from granbayes import _kernel\n"
+        "value = float(_kernel.static_strength(0.01, 3000.0, 2.0e4))\n"
+        "print(json.dumps({'modules': names, 'value': value,\n"
+        " 'folder': str(__import__('pathlib').Path(_kernel.__file__).parent)}))\n"
+    )
+    info = json.loads(_run([bindir / "python", "-c", code], work).stdout)
+    assert {"granbayes._kernel", "granbayes.stats", "granbayes.testing"} <= set(info["modules"])
+    assert len(info["modules"]) > 40
+    assert info["value"] == 3000.0 * 0.01 + 2.0e4 * 0.01 * 0.01
+    cached = list((Path(info["folder"]) / "__pycache__").glob("_kernel.static_strength-*.nbi"))
+    assert Path(info["folder"]).resolve().is_relative_to(bindir.parent.resolve()) and cached
+
+
+def test_a_jump_from_the_wheel_is_the_sources_jump(installed) -> None:
+    """``granbayes simulate`` of one jump from the wheel, run from a folder outside the
+    repository: the height the sources compute, bit for bit. The installed kernel runs as
+    plain Python here (``NUMBA_DISABLE_JIT=1``, a second): the same code as the compiled
+    kernel, which gives the same height to the last bit on this jump."""
+    _, bindir, work = installed
     jump = ["delayed_stutter", 0.612, {"k": 3000.0, "c_d": 50.0, "r_unload": 20.0}]
     params = [a for name, value in jump[2].items() for a in ("--param", f"{name}={value!r}")]
-    out = _run([gb, "simulate", "--command", jump[0], "--phi", jump[1], *params, "--json"], work)
+    args = [bindir / "granbayes", "simulate", "--command", jump[0], "--phi", jump[1], *params]
+    out = _run([*args, "--json"], work, env={"NUMBA_DISABLE_JIT": "1"})
     result = json.loads(out.stdout)
     assert result["status"] == "ok"
     assert result["height_mm"] == simulate(*jump).height_mm
+
+
+@pytest.mark.slow
+def test_full_demo_and_a_fit_from_the_wheel(installed) -> None:
+    """The whole ``granbayes demo`` (the kernel compiled in the new environment, the fit of
+    the shipped reference data included, about 4 minutes on 2 cores) and a tiny
+    ``granbayes fit`` of a SYNTHETIC folder cut from the shipped reference data, from the
+    installed wheel."""
+    _, bindir, work = installed
+    gb = bindir / "granbayes"
+    _run([gb, "demo", "--out", "demo-full"], work, timeout=1800)
+    assert (work / "demo-full" / "fit" / "posterior.nc").stat().st_size > 0
+    heights = pd.read_csv(work / "demo-full" / "heights.csv")
+    assert len(heights) == 5 and (heights["status"] == "ok").all()
 
     code = (
         "from granbayes._synthetic import REFERENCE_DATA\n"
@@ -149,14 +194,4 @@ def test_a_jump_and_a_fit_from_the_wheel(installed) -> None:
         work,
     )  # fmt: skip
     assert (work / "fit" / "posterior.nc").stat().st_size > 0
-    summary = (work / "fit" / "summary.md").read_text()
-    assert "SYNTHETIC" in summary
-
-
-@pytest.mark.slow
-def test_full_demo_from_the_wheel(installed) -> None:
-    """The whole ``granbayes demo`` (fit of the shipped reference data included, about
-    3 minutes on 2 cores) from the installed wheel."""
-    _, bindir, work = installed
-    _run([bindir / "granbayes", "demo", "--out", "demo-full"], work, timeout=1800)
-    assert (work / "demo-full" / "fit" / "posterior.nc").stat().st_size > 0
+    assert "SYNTHETIC" in (work / "fit" / "summary.md").read_text()

@@ -60,6 +60,7 @@ def _with_intercept_coordinates(dt, p: int):
     return out
 
 
+@pytest.mark.long
 def test_the_reference_distribution_is_exact_for_a_linear_law() -> None:
     """A least-squares fit of a linear law with 2 coordinates per volume fraction: the
     p-values over 400 data sets are uniform (KS p-value above 0.01) and the share below

@@ -670,6 +670,7 @@ def test_sbc_of_a_quadratic_fit_takes_jump_heights_alone(
     assert not (tmp_path / "out").exists() and not (tmp_path / "out.partial").exists()
 
 
+@pytest.mark.long
 def test_a_quadratic_replicate_ranks_the_law_at_every_written_phi(
     bed_design: pd.DataFrame,
 ) -> None:
