@@ -932,21 +932,24 @@ def simulate_frames_rows(
     >>> res.frames.shape  # (jumps, frames, (x_foot_mm, x_rod_mm, v_foot_mm_s, v_rod_mm_s))
     (2, 5, 4)
     """
-    rows = np.ascontiguousarray(rows, dtype=float)
+    # writable C arrays whatever the caller passes (a read-only array, such as a pandas
+    # column's values, is another type to numba: one more ~20-s compilation of the kernel)
+    rows = np.require(rows, dtype=float, requirements=["C", "W"])
     if rows.ndim != 2 or rows.shape[1] != _kernel.ROW_SIZE:
         raise ValueError(f"rows must have shape (n, {_kernel.ROW_SIZE})")
     n = rows.shape[0]
     index = (
         np.zeros(n, dtype=np.int64)
         if program_index is None
-        else np.ascontiguousarray(program_index, dtype=np.int64)
+        else np.require(program_index, dtype=np.int64, requirements=["C", "W"])
     )
     if index.shape != (n,):
         raise ValueError(f"program_index must have shape ({n},)")
     if n and (index.min() < 0 or index.max() >= len(programs)):
         raise ValueError(f"program_index must index the {len(programs)} programs")
     times, offsets = _frame_layout(np.asarray(frame_times_s, dtype=float), frame_offsets, n)
-    times = np.ascontiguousarray(times)
+    times = np.require(times, dtype=float, requirements=["C", "W"])
+    offsets = np.require(offsets, dtype=np.int64, requirements=["C", "W"])
     t_end = np.array([p.t_end for p in programs], dtype=float)
     order = _checked_frame_order(times, offsets, t_end[index])
     if order is not None:
