@@ -91,10 +91,8 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     the file order, and so the sharing of module fixtures, is kept.
 
     With ``--dist loadgroup`` (``make test``) xdist puts groups of several tests before
-    single ones: the installed-wheel tests (one group, ~1 min, compiling the kernel in
-    their own environment) go to one worker while the other compiles the kernel for the
-    first diagnosis, so that the second worker finds the compiled kernel in numba's cache
-    instead of compiling it a second time (~45 s on a fresh clone)."""
+    single ones (the installed-wheel tests, ~15 s, are one group). The kernels are
+    compiled before the workers start (:func:`pytest_sessionstart`)."""
 
     def rank(item: pytest.Item) -> int:
         if item.get_closest_marker("ci_subset"):

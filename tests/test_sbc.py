@@ -596,7 +596,9 @@ QUADRATIC = FitSettings(
     terms=("depth", "drag"),
     phi_mode="quadratic",
     sigma_mode="global",
-    sampler=SamplerSettings(n_walkers=8, check_every=60, max_steps=60, n_draws=60),
+    # walkers from the search's ball: the Laplace start's climbs were most of a capped
+    # replicate's time, and what these tests check is the ranking, not the start
+    sampler=SamplerSettings(n_walkers=8, check_every=60, max_steps=60, n_draws=60, start="search"),
 )
 
 
