@@ -566,6 +566,15 @@ def _add_inference_arguments(
     parser.add_argument(
         "--max-steps", type=int, default=max_steps, help=f"step cap (default {max_steps})"
     )
+    parser.add_argument(
+        "--start",
+        choices=("auto", "search", "laplace"),
+        default="auto",
+        help="where each ensemble's walkers start: auto (the default) and laplace climb to "
+        "the posterior mode and draw them from its Laplace approximation; search, a ball "
+        "about the best point of a random search (cheaper; slower to converge on narrow "
+        "posteriors such as tracked jumps')",
+    )
     parser.add_argument("--threads", type=int, help=threads_help)
     parser.add_argument(
         "--calibration",
@@ -684,7 +693,10 @@ def _fit_config(args: argparse.Namespace):
     _check_inference_arguments(args)
     terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
     sampler = SamplerSettings(
-        n_walkers=args.walkers, n_ensembles=args.ensembles, max_steps=args.max_steps
+        n_walkers=args.walkers,
+        n_ensembles=args.ensembles,
+        max_steps=args.max_steps,
+        start=args.start,
     )
     try:
         return FitSettings(
@@ -874,6 +886,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
             n_walkers=args.walkers,
             n_ensembles=args.ensembles,
             max_steps=args.max_steps,
+            start=args.start,
         ),
     )
     experiment = load_experiment(args.data)
@@ -1271,7 +1284,10 @@ def run_sbc_command(args: argparse.Namespace) -> int:
     _check_inference_arguments(args)
     terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
     sampler = SamplerSettings(
-        n_walkers=args.walkers, n_ensembles=args.ensembles, max_steps=args.max_steps
+        n_walkers=args.walkers,
+        n_ensembles=args.ensembles,
+        max_steps=args.max_steps,
+        start=args.start,
     )
     try:
         config = FitSettings(

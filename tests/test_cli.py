@@ -691,6 +691,24 @@ def test_inference_help_lists_the_sampler_options(capsys: pytest.CaptureFixture[
         assert "per ensemble" in stdout
 
 
+def test_start_option_reaches_the_sampler(
+    small_experiment: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--start`` (fit, diagnose, sbc) sets where the walkers start; ``auto`` by default;
+    an unknown choice is refused by the parser, naming the option and the choices."""
+    from granbayes._cli import _fit_config, build_parser
+
+    argv = ["fit", str(small_experiment), "--out", str(tmp_path / "OUT")]
+    assert _fit_config(build_parser().parse_args(argv)).sampler.start == "auto"
+    chosen = build_parser().parse_args([*argv, "--start", "search"])
+    assert _fit_config(chosen).sampler.start == "search"
+    for subcommand in ("fit", "diagnose", "sbc"):
+        assert "--start" in run(capsys, subcommand, "--help")[1], subcommand
+    code, _, err = run(capsys, *argv, "--start", "ball")
+    assert code == EXIT_INPUT
+    assert "--start" in err and "'search'" in err
+
+
 def _info(step: int, converged: bool = False) -> ProgressInfo:
     return ProgressInfo(
         step=step, max_steps=1000, tau_max=12.0, rhat_max=1.004, ess_min=456.0, converged=converged

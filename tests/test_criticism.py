@@ -830,10 +830,11 @@ def test_screening_finds_a_strong_unloading_below_its_off_value() -> None:
     r_unload trade along a curved ridge). Searched only from "off" and above with steps at
     the parent's scale, the screen of this case of the verdict study (SYNTHETIC, oracle:
     ``make_case("unloading", ...)``, r_unload = 2.67, the study of 2026-11-27's
-    ``unloading-009``) stalled at +1.0 nats for 3 of these 6 search seeds, so the true
-    term was screened out and viscous + stiffening named instead, and the others stopped
-    at +85.7 in a second mode. Started below "off" with steps a tenth of every range, all
-    six find +108.3."""
+    ``unloading-009``) stalled at +1.0 nats for 3 of 6 search seeds (2, 4, 6), so the true
+    term was screened out and viscous + stiffening named instead, and the others (1, 3, 5)
+    stopped at +85.7 in a second mode. Started below "off" with steps a tenth of every
+    range, all six find +108.3 (measured 2026-11-28); checked here on one seed of each
+    failure."""
     from granbayes._fitting import FitSettings, fit, screen
     from granbayes.calibration import make_case
 
@@ -842,21 +843,14 @@ def test_screening_finds_a_strong_unloading_below_its_off_value() -> None:
     settings = FitSettings(terms=("depth",), sampler=DiagnoseSettings().sampler, n_threads=1)
     parent = fit(case.experiment, case.table, settings, seed=3).datatree
     unloading = FitSettings(terms=("depth", "unloading"), n_threads=1)
-    gains = [screen(case.experiment, case.table, unloading, parent, seed=s) for s in range(1, 7)]
+    gains = [screen(case.experiment, case.table, unloading, parent, seed=s) for s in (1, 2)]
     assert min(gains) > 100.0, gains
 
 
-@pytest.mark.long
-def test_a_candidate_fit_climbs_from_its_screen() -> None:
-    """``fit(start_points=...)``: the first ensemble climbs from the screen's best point as
-    well. On the verdict study's ``unloading-002`` (SYNTHETIC, oracle; r_unload = 2.23)
-    the depth + unloading posterior at phi = 0.597 has a second mode (r_unload 4.95, the
-    scatter 9 mm against 2.4) 27 nats below the truth's; warm-started from the depth law,
-    6 of 10 fit seeds ended every ensemble there and passed every convergence check (seed
-    0 here). From the screen's point each of them finds the truth's mode (measured: 6 of
-    6 seeds); checked here on the same seed as the fit that misses it, so that the start
-    point is the one difference."""
-    from granbayes._fitting import FitSettings, fit, screen_many
+def _unloading_002():
+    """The verdict study's ``unloading-002`` (SYNTHETIC, oracle; r_unload = 2.23), its
+    depth-law parent fit (seed 3) and the depth + unloading settings of ``diagnose``."""
+    from granbayes._fitting import FitSettings, fit
     from granbayes.calibration import make_case
 
     case = make_case("unloading", 1121497226)
@@ -866,19 +860,44 @@ def test_a_candidate_fit_climbs_from_its_screen() -> None:
         return FitSettings(terms=terms, sampler=sampler, n_threads=1, n_prior_draws=0)
 
     parent = fit(case.experiment, case.table, settings("depth"), seed=3).datatree
+    return case, parent, settings("depth", "unloading")
+
+
+def _best_log_lik(result) -> float:
+    return float(result.datatree["log_likelihood"]["height_mm"].values.sum(axis=-1).max())
+
+
+@pytest.mark.long
+def test_a_candidate_fit_climbs_from_its_screen() -> None:
+    """``fit(start_points=...)``: the first ensemble climbs from the screen's best point as
+    well. On the verdict study's ``unloading-002`` (SYNTHETIC, oracle; r_unload = 2.23)
+    the depth + unloading posterior at phi = 0.597 has a second mode (r_unload 4.95, the
+    scatter 9 mm against 2.4) 27 nats below the truth's; warm-started from the depth law,
+    6 of 10 fit seeds ended every ensemble there and passed every convergence check (seed
+    0 here: ``test_without_the_screens_point_the_fit_misses_the_truths_mode`` shows it).
+    From the screen's point each of them finds the truth's mode (measured: 6 of 6 seeds);
+    checked here on the same seed as the fit that misses it, so that the start point is
+    the one difference."""
+    from granbayes._fitting import fit, screen_many
+
+    case, parent, law = _unloading_002()
     points: list = []
-    law = settings("depth", "unloading")
     screen_many(case.experiment, case.table, [law], parent, seeds=[5], points=points)
     assert points[0][0.597]["r_unload"] == pytest.approx(2.23, abs=0.05)
-
-    def best_log_lik(result) -> float:
-        return float(result.datatree["log_likelihood"]["height_mm"].values.sum(axis=-1).max())
-
-    plain = fit(case.experiment, case.table, law, seed=0, warm_start=parent)
-    assert best_log_lik(plain) < -110.0  # the worse mode
     found = fit(case.experiment, case.table, law, seed=0, warm_start=parent, start_points=points[0])
-    assert best_log_lik(found) > -95.0
+    assert _best_log_lik(found) > -95.0
     assert found.converged
+
+
+@pytest.mark.slow  # the premise of the test above (one fit more, ~12 s)
+def test_without_the_screens_point_the_fit_misses_the_truths_mode() -> None:
+    """The same fit as ``test_a_candidate_fit_climbs_from_its_screen`` without the screen's
+    point ends in the worse mode: the start point is what makes that test pass."""
+    from granbayes._fitting import fit
+
+    case, parent, law = _unloading_002()
+    plain = fit(case.experiment, case.table, law, seed=0, warm_start=parent)
+    assert _best_log_lik(plain) < -110.0  # the worse mode
 
 
 def test_a_screened_out_candidate_is_listed_not_fitted(tmp_path: Path) -> None:

@@ -228,6 +228,8 @@ def test_joint_fit_cli_keeps_every_kind_on_its_own_dims(
         "100",
         "--ensembles",
         "2",
+        "--start",  # the search's ball: no climbs (the start is not what this checks)
+        "search",
         "--allow-unconverged",
         "--quiet",
         "--seed",
