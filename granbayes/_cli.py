@@ -572,8 +572,8 @@ def _add_inference_arguments(
         default="auto",
         help="where each ensemble's walkers start: auto (the default) and laplace climb to "
         "the posterior mode and draw them from its Laplace approximation; search, a ball "
-        "about the best point of a random search (cheaper; slower to converge on narrow "
-        "posteriors such as tracked jumps')",
+        "about the best point of a random search (cheaper, but slower to converge on narrow "
+        "posteriors such as those of tracked jumps)",
     )
     parser.add_argument("--threads", type=int, help=threads_help)
     parser.add_argument(
