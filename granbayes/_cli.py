@@ -593,6 +593,16 @@ def _add_inference_arguments(
     )
 
 
+def _sampler_arguments(args: argparse.Namespace) -> dict:
+    """The ``SamplerSettings`` fields that ``_add_inference_arguments`` sets."""
+    return {
+        "n_walkers": args.walkers,
+        "n_ensembles": args.ensembles,
+        "max_steps": args.max_steps,
+        "start": args.start,
+    }
+
+
 def _add_kinds_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--data",
@@ -692,12 +702,7 @@ def _fit_config(args: argparse.Namespace):
 
     _check_inference_arguments(args)
     terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
-    sampler = SamplerSettings(
-        n_walkers=args.walkers,
-        n_ensembles=args.ensembles,
-        max_steps=args.max_steps,
-        start=args.start,
-    )
+    sampler = SamplerSettings(**_sampler_arguments(args))
     try:
         return FitSettings(
             terms=terms,
@@ -881,13 +886,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     )
     config = dc.replace(
         config,
-        sampler=dc.replace(
-            config.sampler,
-            n_walkers=args.walkers,
-            n_ensembles=args.ensembles,
-            max_steps=args.max_steps,
-            start=args.start,
-        ),
+        sampler=dc.replace(config.sampler, **_sampler_arguments(args)),
     )
     experiment = load_experiment(args.data)
     data = _load_measurements(args, experiment)
@@ -1283,12 +1282,7 @@ def run_sbc_command(args: argparse.Namespace) -> int:
 
     _check_inference_arguments(args)
     terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
-    sampler = SamplerSettings(
-        n_walkers=args.walkers,
-        n_ensembles=args.ensembles,
-        max_steps=args.max_steps,
-        start=args.start,
-    )
+    sampler = SamplerSettings(**_sampler_arguments(args))
     try:
         config = FitSettings(
             terms=terms,

@@ -117,8 +117,8 @@ def _diagnosis(term: str | None, screen: bool = True):
 #: discovery, a hidden term (added mass, the thesis's term and the one at the detection
 #: limit of the verdict study; 42 s on a slow 2-core machine, compaction 60 s, drag 65 s)
 #: and an effect outside the library (a ground force of the oracle: a depth force that
-#: saturates; the cheapest of the four, 40 s, which keeps ``.ci/run`` under 8 minutes:
-#: with the pause-relaxing bed, 85 s, it took 8 min 3 s).
+#: saturates; the cheapest of the four, 40 s; with the pause-relaxing bed, 85 s, ``.ci/run``
+#: took 8 min 3 s on a fast machine).
 #: The whole suite runs with ``make test-slow``.
 CI_SUBSET = ("null", "added_mass", "janssen_saturation")
 
