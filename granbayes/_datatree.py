@@ -16,7 +16,7 @@ import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-import arviz as az
+import arviz_base as azb
 import numpy as np
 import pandas as pd
 import xarray as xr
@@ -151,7 +151,7 @@ def build_datatree(
             message="Found chain dimension to be longer than draw dimension",
             category=UserWarning,
         )
-        dt = az.from_dict(groups, coords=all_coords, dims=all_dims)
+        dt = azb.from_dict(groups, coords=all_coords, dims=all_dims)
     for group, extra_vars in (thinned or {}).items():
         if extra_vars.data_vars:
             ds = dt[group].to_dataset() if group in dt.children else xr.Dataset()

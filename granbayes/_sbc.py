@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from . import figures, stats
+from . import stats
 from ._deprecated import renamed_keyword
 from ._experiment import Experiment
 from ._files import atomic_path, write_json, write_text
@@ -856,7 +856,11 @@ def _write_outputs(
     write_json(work / "summary.json", summary)
     write_text(work / "summary.md", _summary_markdown(summary))
     if len(ranks):
+        # Imported here, in the client: the worker processes that run the replicates
+        # import this module, and need no plotting (matplotlib: ~1 s per process).
         from matplotlib import pyplot as plt
+
+        from . import figures
 
         pit, phis = stats.normalised_ranks(ranks)
         if all(len(v) >= 2 for v in pit.values()):

@@ -234,7 +234,7 @@ def test_sbc_runs_on_a_dask_scheduler_with_two_worker_processes(
 def test_killed_campaign_resumes_without_recomputing(tmp_path: Path, design: Path) -> None:
     out = tmp_path / "sbc"
     partial = tmp_path / "sbc.partial"
-    args = ["sbc", str(design), "--out", str(out), "--replicates", "4", "--seed", "4"]
+    args = ["sbc", str(design), "--out", str(out), "--replicates", "3", "--seed", "4"]
     args += MACHINERY
     proc = subprocess.Popen(
         [BIN / "granbayes", *args, "--workers", "1"],
@@ -245,7 +245,7 @@ def test_killed_campaign_resumes_without_recomputing(tmp_path: Path, design: Pat
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and proc.poll() is None:
-            if len(list((partial / "tasks").glob("replicate-*.json"))) >= 2:
+            if list((partial / "tasks").glob("replicate-*.json")):
                 break
             time.sleep(0.05)
         assert proc.poll() is None, "the campaign ended before it could be killed"
@@ -260,13 +260,13 @@ def test_killed_campaign_resumes_without_recomputing(tmp_path: Path, design: Pat
         p.name: (p.read_bytes(), p.stat().st_mtime_ns)
         for p in (partial / "tasks").glob("replicate-*.json")
     }
-    assert 2 <= len(finished) < 4
+    assert 1 <= len(finished) < 3
 
     assert main([*args, "--resume", "--workers", "2"]) == EXIT_OK
     for name, (content, mtime) in finished.items():  # not recomputed, not rewritten
         path = out / "tasks" / name
         assert (path.read_bytes(), path.stat().st_mtime_ns) == (content, mtime)
-    check_outputs(out, 4)
+    check_outputs(out, 3)
     assert not partial.exists()
     assert not list((out / "tasks").glob(".*"))  # no half-written leftovers
 

@@ -8,12 +8,12 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from .. import figures, stats
+from .. import stats
 from .._experiment import Experiment
 from .._likelihood import HeightBlock, Observations, ObservationSettings
 from .._measurements import load_jumps
 from ..commands import SETTINGS
-from ._kind import Kind
+from ._kind import FigureName, Kind
 
 __all__ = ["HEIGHTS"]
 
@@ -73,5 +73,5 @@ HEIGHTS = Kind(
     to_observed=_to_observed,
     from_observed=_from_observed,
     cells=stats.residual_table,
-    figures={"predictive": figures.plot_predictive},
+    figures={"predictive": FigureName("plot_predictive")},
 )

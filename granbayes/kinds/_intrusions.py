@@ -8,11 +8,11 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from .. import figures, stats
+from .. import stats
 from .._experiment import Experiment
 from .._likelihood import IntrusionBlock, ObservationSettings
 from .._measurements import load_intrusions
-from ._kind import Kind
+from ._kind import FigureName, Kind
 
 __all__ = ["INTRUSIONS"]
 
@@ -73,5 +73,5 @@ INTRUSIONS = Kind(
     to_observed=_to_observed,
     from_observed=_from_observed,
     cells=stats.intrusion_cells,
-    figures={"intrusions": figures.plot_intrusions},
+    figures={"intrusions": FigureName("plot_intrusions")},
 )

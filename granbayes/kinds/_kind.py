@@ -12,7 +12,7 @@ import xarray as xr
 from .._experiment import Experiment
 from .._likelihood import Block, ObservationSettings
 
-__all__ = ["Kind"]
+__all__ = ["FigureName", "Kind"]
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,8 @@ class Kind:
     cells : callable, optional
         ``cells(datatree) -> DataFrame``: its residual cells (:mod:`granbayes.stats`).
     figures : mapping of str to callable
-        Figure name (file stem) to ``figure(datatree) -> Figure`` (:mod:`granbayes.figures`).
+        Figure name (file stem) to ``figure(datatree) -> Figure``; the built-in kinds name
+        theirs in :mod:`granbayes.figures` with :class:`FigureName`.
     """
 
     name: str
@@ -64,3 +65,26 @@ class Kind:
         """Default: no figures."""
         if self.figures is None:
             object.__setattr__(self, "figures", {})
+
+
+@dataclass(frozen=True)
+class FigureName:
+    """A figure function of :mod:`granbayes.figures`, imported when first drawn.
+
+    The built-in kinds name their figures with it so that importing the registry does not
+    import matplotlib (~1 s): every Dask worker process that only fits imports the registry.
+    Picklable (a name, not a function). Called, it is the function it names.
+
+    Parameters
+    ----------
+    name : str
+        The function's name in :mod:`granbayes.figures` (``"plot_predictive"``).
+    """
+
+    name: str
+
+    def __call__(self, *args, **kwargs):
+        """Draw: ``granbayes.figures.<name>(*args, **kwargs)``."""
+        from .. import figures
+
+        return getattr(figures, self.name)(*args, **kwargs)

@@ -8,12 +8,12 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from .. import figures, stats
+from .. import stats
 from .._experiment import Experiment
 from .._likelihood import ObservationSettings, TrajectoryBlock
 from .._measurements import load_trajectories
 from ..commands import SETTINGS, CommandSettings, build_command
-from ._kind import Kind
+from ._kind import FigureName, Kind
 
 __all__ = ["PHASES", "TRAJECTORIES", "frame_phases"]
 
@@ -131,5 +131,5 @@ TRAJECTORIES = Kind(
     to_observed=_to_observed,
     from_observed=_from_observed,
     cells=stats.trajectory_cells,
-    figures={"trajectories": figures.plot_tracked_jumps},
+    figures={"trajectories": FigureName("plot_tracked_jumps")},
 )

@@ -10,7 +10,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping
 
-import arviz as az
+import arviz_stats as azs
 import numpy as np
 import pandas as pd
 import xarray as xr
@@ -115,7 +115,7 @@ def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
     (var_name,) = dt["log_likelihood"].data_vars
     with warnings.catch_warnings():
         _ignore_pareto_k_warning()  # the k values are returned
-        res = az.loo(dt, pointwise=True, var_name=var_name)
+        res = azs.loo(dt, pointwise=True, var_name=var_name)
     k = np.asarray(res.pareto_k)
     good_k = float(res.good_k)
     return {
@@ -211,7 +211,7 @@ def compare(models: Mapping[str, xr.DataTree]) -> pd.DataFrame:
     """
     with warnings.catch_warnings():
         _ignore_pareto_k_warning()  # flagged per model in the ``warning`` column
-        return az.compare(dict(models), var_name="height_mm")
+        return azs.compare(dict(models), var_name="height_mm")
 
 
 def cell_loo(dt: xr.DataTree) -> dict:
@@ -254,7 +254,7 @@ def loo_pit(dt: xr.DataTree) -> np.ndarray:
     """
     with warnings.catch_warnings():
         _ignore_pareto_k_warning()  # the PSIS weights' k values are reported by ``loo``
-        pit = az.loo_pit(_pit_tree(dt), var_names=["height_mm"])
+        pit = azs.loo_pit(_pit_tree(dt), var_names=["height_mm"])
     return np.asarray(pit["height_mm"].values, dtype=float)
 
 

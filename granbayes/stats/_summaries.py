@@ -6,7 +6,7 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 
-import arviz as az
+import arviz_stats as azs
 import numpy as np
 import pandas as pd
 import xarray as xr
@@ -92,7 +92,7 @@ def summary_table(
     -------
     pandas.DataFrame
     """
-    table = az.summary(dt, var_names=var_names, ci_prob=ci_prob, ci_kind="eti")
+    table = azs.summary(dt, var_names=var_names, ci_prob=ci_prob, ci_kind="eti")
     for row, value in _ensemble_rhat(dt).items():
         if row in table.index:
             table.loc[row, "r_hat"] = value
