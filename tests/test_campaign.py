@@ -268,6 +268,84 @@ def test_worker_killed_mid_task_is_retried_and_the_campaign_completes(tmp_path: 
     assert len(list((tmp_path / "camp" / "tasks").iterdir())) == 6
 
 
+_KILLED_SCRIPT = '''\
+import sys
+import time
+
+from granbayes.campaign import ClusterSettings, Task, run_campaign, spawn_seeds
+
+
+def slow_square(x, *, seed):
+    """The test module's ``square`` with a longer sleep (the campaign is killed mid-way)."""
+    time.sleep(0.4)
+    return [{"x": x, "y": x * x, "seed_echo": seed}]
+
+
+if __name__ == "__main__":
+    seeds = spawn_seeds(7, 5)
+    run_campaign(
+        [Task(f"t{i}", slow_square, (i,), seed=s) for i, s in enumerate(seeds)],
+        sys.argv[1],
+        description={"test": "killed client"},
+        cluster=ClusterSettings(n_workers=1, numba_threads=1),
+        progress=False,
+    )
+'''
+
+
+def test_a_killed_campaign_resumes_without_recomputing(tmp_path: Path, client: Client) -> None:
+    """The process that runs a campaign (and its local cluster) is killed (SIGKILL) after
+    its first results: nothing appears at OUT, the finished results stay in OUT.partial,
+    and ``resume`` (here on another cluster) runs only the others, leaving the finished
+    files as they were (bytes and modification times), with no half-written leftovers.
+    The SBC command's own kill-and-resume test, on fits, is slow."""
+    script = tmp_path / "killed.py"
+    script.write_text(_KILLED_SCRIPT)
+    out, partial = tmp_path / "camp", tmp_path / "camp.partial"
+    proc = subprocess.Popen(
+        [sys.executable, str(script), str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,  # the script and its local cluster: one group to kill
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            if list((partial / "tasks").glob("t*.json")):
+                break
+            time.sleep(0.02)
+        assert proc.poll() is None, "the campaign ended before it could be killed"
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=30)
+    assert not out.exists()  # OUT appears only when the campaign completes
+    finished = snapshot(partial / "tasks")
+    assert 1 <= len(finished) < 5
+
+    seeds = spawn_seeds(7, 5)
+    tasks = [Task(f"t{i}", square, (i,), {"sleep_s": 0.0}, seed=s) for i, s in enumerate(seeds)]
+    res = run_campaign(
+        tasks,
+        out,
+        description={"test": "killed client"},
+        client=client,
+        resume=True,
+        progress=False,
+    )
+    assert res.n_reused == len(finished) and res.n_run == 5 - len(finished)
+    assert res.n_failed == 0
+    after = snapshot(out / "tasks")
+    assert {name: after[name] for name in finished} == finished  # not recomputed, not rewritten
+    assert sorted(after) == [f"t{i}.json" for i in range(5)]
+    assert sorted(res.results["x"]) == [0, 1, 2, 3, 4]
+    assert list(res.results["seed_echo"]) == list(seeds)
+    assert not partial.exists()
+    assert not list((out / "tasks").glob(".*"))  # no half-written leftovers
+
+
 _COLD_SCRIPT = '''\
 import sys
 

@@ -823,7 +823,47 @@ def test_screening_side_by_side_is_screening_one_by_one(drag_case) -> None:
     assert together == alone
 
 
-@pytest.mark.long
+def test_a_screen_also_starts_below_an_off_value_inside_the_prior_range(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The screen's search starts a new parameter at "off" and at three levels across its
+    prior range; where "off" lies inside the range (unloading's r_unload = 20 in [1, 200],
+    log-uniform), the levels below it are starts of their own (r_unload 1.7 and 4.9). A
+    term whose "off" is its range's lower end (drag's c_d = 0) gets none. On the verdict
+    study's data this is what finds a strong unloading the search from above misses:
+    ``test_screening_finds_a_strong_unloading_below_its_off_value`` (slow)."""
+    import granbayes._fitting as gfit
+    from granbayes._fitting import FitSettings, fit, screen
+
+    table = _table({})
+    depth = FitSettings(terms=("depth",), sampler=FAST, n_threads=1, n_prior_draws=0)
+    parent = fit(Experiment(), table, depth, seed=3).datatree
+    batches: list[list[np.ndarray]] = []
+    original = gfit.evaluate_models
+
+    def spy(models, us, *args, **kwargs):
+        batches.append([np.array(u) for u in us])
+        return original(models, us, *args, **kwargs)
+
+    monkeypatch.setattr(gfit, "evaluate_models", spy)
+    started = {}
+    for term, name in (("unloading", "r_unload"), ("drag", "c_d")):
+        law = FitSettings(terms=("depth", term), n_threads=1)
+        batches.clear()
+        screen(Experiment(), table, law, parent, seed=1, n_rounds=1)
+        data = gfit._as_measurements(table)
+        ((_, model, _),) = gfit.part_models(Experiment(), data, law, gfit.default_priors())
+        j = [c.parameter for c in model.coordinates].index(name)
+        prior = model.coordinates[j].prior
+        # the first batch: the parent's best draws; the second: every start of the search
+        starts = prior.to_value(batches[1][0][:, j])
+        started[name] = np.unique(np.round(starts, 6))
+    assert started["r_unload"].min() == pytest.approx(200.0**0.1, rel=1e-6)  # 1.70
+    assert np.any(np.isclose(started["r_unload"], 200.0**0.3, rtol=1e-6))  # 4.90
+    assert started["c_d"].min() == 0.0  # "off" is the lower end: nothing below it
+
+
+@pytest.mark.slow  # ~17 s; the mechanism in the fast suite: the test above
 def test_screening_finds_a_strong_unloading_below_its_off_value() -> None:
     """Unloading's "off" value (r_unload = 20) lies inside its prior range [1, 200], and a
     strong unloading bed has r_unload of 2-4: below it, where k must move too (k and
@@ -867,7 +907,7 @@ def _best_log_lik(result) -> float:
     return float(result.datatree["log_likelihood"]["height_mm"].values.sum(axis=-1).max())
 
 
-@pytest.mark.long
+@pytest.mark.slow  # ~26 s; the mechanism in the fast suite: test_fit.py's start-point test
 def test_a_candidate_fit_climbs_from_its_screen() -> None:
     """``fit(start_points=...)``: the first ensemble climbs from the screen's best point as
     well. On the verdict study's ``unloading-002`` (SYNTHETIC, oracle; r_unload = 2.23)

@@ -593,6 +593,54 @@ def test_warm_start_climbs_from_the_parents_best_draw(
     assert diff > -(DiagnoseSettings().nested_tolerance + 2.0 * se), (diff, se)
 
 
+def _spy_on_climbs(monkeypatch: pytest.MonkeyPatch) -> list[list[np.ndarray]]:
+    """The starts of the climbs of every Laplace start the next fits make (sampling
+    coordinates, one list per start, as they enter the evolution before the climb)."""
+    climbs: list[list[np.ndarray]] = []
+    original = gfit._evolve
+
+    def spy(models, rngs, bounds, points, *args, **kwargs):
+        climbs.append([np.array(u, dtype=float) for u in points.values()])
+        return original(models, rngs, bounds, points, *args, **kwargs)
+
+    monkeypatch.setattr(gfit, "_evolve", spy)
+    return climbs
+
+
+def test_a_start_point_is_one_more_climb_of_the_first_ensemble(
+    one_phi: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``fit(start_points=...)`` (``diagnose`` passes a candidate its screen's best point):
+    the point, in the run's sampling coordinates, is climbed from as well, once (ensemble
+    0); a point at another volume fraction, one without every parameter, or one outside
+    the prior is no start. The fit on the verdict study's data whose climb from such a
+    point finds the mode the others miss is ``test_a_candidate_fit_climbs_from_its_screen``
+    (slow)."""
+    experiment, table = load_folder(one_phi)
+    config = FitSettings(terms=("depth", "drag"), sampler=TINY, n_threads=1, n_prior_draws=0)
+    point = {"k": 2500.0, "c_d": 40.0, "sigma_mm": 2.5}  # far from the truth (k = 4000)
+    climbs = _spy_on_climbs(monkeypatch)
+    result = fit(experiment, table, config, seed=5)
+    plain = list(climbs)
+    climbs.clear()
+    fit(experiment, table, config, seed=5, start_points={PHI_C: point})
+    model = result.parts[0].model
+    u = gfit._start_point(model, {PHI_C: point})
+    assert u is not None and u.shape == (model.ndim,)
+    assert [c.parameter for c in model.coordinates] == ["k", "c_d", "sigma_mm"]
+    pairs = zip(model.coordinates, u, strict=True)
+    back = [float(c.prior.to_value(np.asarray(v))) for c, v in pairs]
+    assert back == pytest.approx([2500.0, 40.0, 2.5], rel=1e-9)
+    assert len(climbs) == len(plain) == 1  # one run (one volume fraction), one start
+    assert len(climbs[0]) == len(plain[0]) + 1
+    assert sum(np.array_equal(c, u) for c in climbs[0]) == 1
+    assert not any(np.array_equal(c, u) for c in plain[0])
+    # no start: another volume fraction, a missing parameter, a point outside the prior
+    assert gfit._start_point(model, {0.622: point}) is None
+    assert gfit._start_point(model, {PHI_C: {"k": 2500.0, "c_d": 40.0}}) is None
+    assert gfit._start_point(model, {PHI_C: {**point, "k": 1e12}}) is None
+
+
 # ----------------------------------------------------------------------------------------
 # Determinism, progress, resume and compare_commands on the capped two-phi fit
 # ----------------------------------------------------------------------------------------

@@ -230,7 +230,7 @@ def test_sbc_runs_on_a_dask_scheduler_with_two_worker_processes(
 # ----------------------------------------------------------------------------------------
 # (b) a killed campaign resumes without recomputing finished replicates
 # ----------------------------------------------------------------------------------------
-@pytest.mark.long
+@pytest.mark.slow  # ~20-35 s; a killed campaign's resume in the fast suite: test_campaign.py
 def test_killed_campaign_resumes_without_recomputing(tmp_path: Path, design: Path) -> None:
     out = tmp_path / "sbc"
     partial = tmp_path / "sbc.partial"
