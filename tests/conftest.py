@@ -91,8 +91,9 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     the file order, and so the sharing of module fixtures, is kept.
 
     With ``--dist loadgroup`` (``make test``) xdist puts groups of several tests before
-    single ones (the installed-wheel tests, ~15 s, are one group). The kernels are
-    compiled before the workers start (:func:`pytest_sessionstart`)."""
+    single ones (the installed-wheel tests, ~15 s, are one group). The heights kernel is
+    compiled before the first test runs; the others while the first tests run
+    (:func:`pytest_sessionstart`)."""
 
     def rank(item: pytest.Item) -> int:
         if item.get_closest_marker("ci_subset"):
@@ -102,34 +103,81 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=rank)
 
 
+#: The environment variables by which the pytest-xdist workers find the kernels' compilation
+#: (:func:`pytest_sessionstart`): the file it creates once the heights kernel is compiled,
+#: and its process id.
+READY_VARIABLE, PID_VARIABLE = "GRANBAYES_TEST_KERNELS_READY", "GRANBAYES_TEST_KERNELS_PID"
+
+_compilation: dict = {}
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
-    """Under pytest-xdist, compile the numba kernels into numba's cache before the workers
-    start, the heights and the frames parts side by side (tests/compile_kernels.py).
+    """Under pytest-xdist, compile the numba kernels into numba's cache in one process
+    beside the workers (tests/compile_kernels.py): the heights kernel first, which every
+    worker waits for before its first test (:func:`_kernels_compiled`), then the others,
+    while the workers run the first tests (the hidden-effect diagnoses, heights only).
 
     Each kernel specialization takes 10-35 s to compile on a fresh clone, and numba's
     cache is shared through the files only: two workers whose first tests need the same
     specialization each compile it, and did (a fresh-clone run on a slow machine spent
-    ~150 s of its workers' time compiling, about twice the compilation itself). Runs in
-    the controlling process (this hook precedes pytest-xdist's, which starts the
-    workers); with a warm cache it only loads (~3 s). A part that fails is reported and
-    left to the tests, which then compile (and fail) on their own."""
+    ~150 s of its workers' time compiling, about twice the compilation itself). One
+    process, because the kernels share their integrator's functions: the kernel with
+    frames compiled in a process of its own compiled them again (~26 s of ~45 s). Runs
+    from the controlling process (this hook precedes pytest-xdist's, which starts the
+    workers); with a warm cache it only loads (~3 s). If the compilation fails, the
+    workers go on (their tests then compile, and fail, on their own) and the failure is
+    printed at the end of the session."""
     config = session.config
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
     import subprocess
     import sys
+    import tempfile
 
+    folder = Path(tempfile.mkdtemp(prefix="granbayes-kernels-"))
+    ready = folder / "heights-compiled"
     script = Path(__file__).with_name("compile_kernels.py")
-    parts = {
-        part: subprocess.Popen(
-            [sys.executable, str(script), part], stdout=subprocess.PIPE, stderr=subprocess.STDOUT
-        )
-        for part in ("heights", "frames")
-    }
-    for part, proc in parts.items():
-        output, _ = proc.communicate()
-        if proc.returncode:
-            print(f"tests/compile_kernels.py {part} failed:\n{output.decode(errors='replace')}")
+    log = open(folder / "compile.log", "wb")  # closed in pytest_sessionfinish
+    proc = subprocess.Popen(
+        [sys.executable, str(script), str(ready)], stdout=log, stderr=subprocess.STDOUT
+    )
+    _compilation.update(proc=proc, log=log, folder=folder)
+    os.environ[READY_VARIABLE], os.environ[PID_VARIABLE] = str(ready), str(proc.pid)
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """Wait for the kernels' compilation (:func:`pytest_sessionstart`); print its output
+    if it failed."""
+    if not _compilation:
+        return
+    import shutil
+
+    proc, log, folder = _compilation["proc"], _compilation["log"], _compilation["folder"]
+    code = proc.wait()
+    log.close()
+    if code:
+        text = (folder / "compile.log").read_text(errors="replace")
+        print(f"tests/compile_kernels.py failed (exit {code}):\n{text}")
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _kernels_compiled() -> None:
+    """In a pytest-xdist worker: wait, before the first test, until the heights kernel is
+    in numba's cache (or its compilation has ended, whatever its outcome)."""
+    ready = os.environ.get(READY_VARIABLE)
+    if not ready or not os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    import time
+
+    pid = int(os.environ[PID_VARIABLE])
+    deadline = time.monotonic() + 900.0
+    while not Path(ready).exists() and time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:  # it ended (failed) before the heights kernel was ready
+            return
+        time.sleep(0.1)
 
 
 def pytest_configure(config):
