@@ -1,15 +1,16 @@
 """Compile the numba kernels the tests use into numba's cache (run by tests/conftest.py).
 
-``python tests/compile_kernels.py READY`` compiles, in this order, the batched heights
-kernel (``simulate_batch``), after which it creates the file ``READY``; then a recorded
-trajectory, the intrusion curves, the batched kernel with frames (tracked jumps) and the
-tracked-jump likelihood's sums. One process, in this order, because the kernels share
+``python tests/compile_kernels.py FOLDER`` compiles, in this order, the batched heights
+kernel (``simulate_batch``), after which it creates the file ``FOLDER/heights``; then a
+recorded trajectory, the intrusion curves, the batched kernel with frames (tracked jumps)
+and the tracked-jump likelihood's sums, after which (or after a failure, then with its
+traceback) it creates ``FOLDER/done``. One process, in this order, because the kernels share
 their integrator's functions: compiled first with the heights kernel, they are loaded from
 numba's cache by the others (the kernel with frames: ~19 s after the heights kernel, ~45 s
 in a process of its own on a slow 2-core machine). With a warm cache everything only
-loads (about 3 s). The pytest-xdist workers wait for ``READY`` before their first test
-(tests/conftest.py): the first tests, the hidden-effect diagnoses, need the heights kernel
-only, and run while this process compiles the rest.
+loads (about 3 s). The pytest-xdist workers wait for these files (tests/conftest.py): the
+hidden-effect diagnoses, which need the heights kernel only, run while this process
+compiles the rest.
 """
 
 from __future__ import annotations
@@ -52,6 +53,16 @@ def the_rest() -> None:
 
 
 if __name__ == "__main__":
-    heights()
-    Path(sys.argv[1]).touch()
-    the_rest()
+    folder = Path(sys.argv[1])
+    outcome = "ok"
+    try:
+        heights()
+        (folder / "heights").touch()
+        the_rest()
+    except BaseException:
+        import traceback
+
+        outcome = traceback.format_exc()
+        raise
+    finally:
+        (folder / "done").write_text(outcome)

@@ -83,19 +83,22 @@ def shared_file() -> Callable[[str], Path]:
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Run the longest tests first: the hidden-effect cases of ``ci_subset`` (a diagnosis
-    each, ~40-60 s), then the fast tests marked ``long`` (> ~10 s), then the rest in file
-    order. pytest-xdist hands the tests out one at a time in this order, so the two workers
-    end together instead of one running a minute-long test while the other idles (longest
-    first is the classic greedy rule for two machines). A stable sort: within each class
-    the file order, and so the sharing of module fixtures, is kept.
+    """Run the tests that need no kernel first (:data:`KERNEL_FREE`, while the heights
+    kernel compiles), then the longest: the hidden-effect cases of ``ci_subset`` (a
+    diagnosis each, ~40-60 s), then the fast tests marked ``long`` (> ~10 s), then the
+    rest in file order. pytest-xdist hands the tests out one at a time in this order, so
+    the two workers end together instead of one running a minute-long test while the
+    other idles (longest first is the classic greedy rule for two machines). A stable
+    sort: within each class the file order, and so the sharing of module fixtures, is
+    kept.
 
     With ``--dist loadgroup`` (``make test``) xdist puts groups of several tests before
-    single ones (the installed-wheel tests, ~15 s, are one group). The heights kernel is
-    compiled before the first test runs; the others while the first tests run
-    (:func:`pytest_sessionstart`)."""
+    single ones (the installed-wheel tests, ~15 s, are one group). The other kernels
+    compile while the first tests run (:func:`pytest_sessionstart`)."""
 
     def rank(item: pytest.Item) -> int:
+        if item.path.name in KERNEL_FREE:
+            return -1
         if item.get_closest_marker("ci_subset"):
             return 0
         return 1 if item.get_closest_marker("long") else 2
@@ -104,18 +107,18 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 
 #: The environment variables by which the pytest-xdist workers find the kernels' compilation
-#: (:func:`pytest_sessionstart`): the file it creates once the heights kernel is compiled,
-#: and its process id.
-READY_VARIABLE, PID_VARIABLE = "GRANBAYES_TEST_KERNELS_READY", "GRANBAYES_TEST_KERNELS_PID"
+#: (:func:`pytest_sessionstart`): the folder of its files and its process id.
+FOLDER_VARIABLE, PID_VARIABLE = "GRANBAYES_TEST_KERNELS", "GRANBAYES_TEST_KERNELS_PID"
 
 _compilation: dict = {}
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
     """Under pytest-xdist, compile the numba kernels into numba's cache in one process
-    beside the workers (tests/compile_kernels.py): the heights kernel first, which every
-    worker waits for before its first test (:func:`_kernels_compiled`), then the others,
-    while the workers run the first tests (the hidden-effect diagnoses, heights only).
+    beside the workers (tests/compile_kernels.py): the heights kernel first, then the
+    others. The workers' first tests need no kernel (:data:`KERNEL_FREE`); the
+    hidden-effect diagnoses (``ci_subset``) wait for the heights kernel, every other
+    test for all of them (:func:`_kernels_compiled`).
 
     Each kernel specialization takes 10-35 s to compile on a fresh clone, and numba's
     cache is shared through the files only: two workers whose first tests need the same
@@ -135,14 +138,13 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     import tempfile
 
     folder = Path(tempfile.mkdtemp(prefix="granbayes-kernels-"))
-    ready = folder / "heights-compiled"
     script = Path(__file__).with_name("compile_kernels.py")
     log = open(folder / "compile.log", "wb")  # closed in pytest_sessionfinish
     proc = subprocess.Popen(
-        [sys.executable, str(script), str(ready)], stdout=log, stderr=subprocess.STDOUT
+        [sys.executable, str(script), str(folder)], stdout=log, stderr=subprocess.STDOUT
     )
     _compilation.update(proc=proc, log=log, folder=folder)
-    os.environ[READY_VARIABLE], os.environ[PID_VARIABLE] = str(ready), str(proc.pid)
+    os.environ[FOLDER_VARIABLE], os.environ[PID_VARIABLE] = str(folder), str(proc.pid)
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
@@ -161,23 +163,61 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
     shutil.rmtree(folder, ignore_errors=True)
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _kernels_compiled() -> None:
-    """In a pytest-xdist worker: wait, before the first test, until the heights kernel is
-    in numba's cache (or its compilation has ended, whatever its outcome)."""
-    ready = os.environ.get(READY_VARIABLE)
-    if not ready or not os.environ.get("PYTEST_XDIST_WORKER"):
+#: Test modules none of whose fast tests runs a numba kernel in its own process (each run
+#: alone, 2026-11-28: no dispatcher of ``granbayes._kernel`` had a signature afterwards).
+#: They run first, while the kernels compile (:func:`_kernels_compiled`); a test of one
+#: that did need a kernel would compile it itself (time, not a failure).
+KERNEL_FREE = frozenset(
+    {
+        "test_benchmarks.py",
+        "test_docs.py",
+        "test_elpd_difference.py",
+        "test_experiment.py",
+        "test_figures.py",
+        "test_lab_data.py",
+        "test_layers.py",
+        "test_moment_matching.py",
+        "test_oracle_effects.py",
+        "test_oracle_kinds.py",
+        "test_packaging.py",
+        "test_search.py",
+        "test_starts.py",
+    }
+)
+
+_compiled: set[str] = set()
+
+
+@pytest.fixture(autouse=True)
+def _kernels_compiled(request: pytest.FixtureRequest) -> None:
+    """In a pytest-xdist worker, before a test outside :data:`KERNEL_FREE`: wait until the
+    kernels it may need are in numba's cache, the heights kernel for the hidden-effect
+    diagnoses (``ci_subset``), all of them for the others (or until the compilation has
+    ended, whatever its outcome; :func:`pytest_sessionstart`)."""
+    folder = os.environ.get(FOLDER_VARIABLE)
+    if not folder or not os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    if request.node.path.name in KERNEL_FREE:
+        return
+    needed = "heights" if request.node.get_closest_marker("ci_subset") else "done"
+    if needed in _compiled or "done" in _compiled:
         return
     import time
 
     pid = int(os.environ[PID_VARIABLE])
     deadline = time.monotonic() + 900.0
-    while not Path(ready).exists() and time.monotonic() < deadline:
-        try:
+    while time.monotonic() < deadline:
+        if (Path(folder) / needed).exists() or (Path(folder) / "done").exists():
+            break
+        try:  # killed before it could say so (then a zombie until the session's end)
             os.kill(pid, 0)
-        except ProcessLookupError:  # it ended (failed) before the heights kernel was ready
-            return
+            status = Path(f"/proc/{pid}/status")
+            if status.exists() and "State:\tZ" in status.read_text():
+                break
+        except OSError:
+            break
         time.sleep(0.1)
+    _compiled.add(needed)
 
 
 def pytest_configure(config):
