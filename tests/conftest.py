@@ -82,6 +82,40 @@ def shared_file() -> Callable[[str], Path]:
     return find
 
 
+@pytest.fixture(scope="session")
+def kill_when_written() -> Callable[[list, Path, str], None]:
+    """``kill_when_written(command, folder, pattern)``: run ``command`` (a list of
+    arguments) in a process group of its own, with its output discarded, and kill the
+    whole group (the command and any local Dask cluster it started) with SIGKILL as soon
+    as ``folder`` holds a file matching ``pattern``. Fails if the command ends first or
+    nothing is written within 120 s: the tests of resuming a killed campaign use it."""
+    import signal
+    import subprocess
+    import time
+
+    def run(command: list, folder: Path, pattern: str) -> None:
+        proc = subprocess.Popen(
+            command,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,  # the command and its local cluster: one group to kill
+        )
+        try:
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline and proc.poll() is None:
+                if list(folder.glob(pattern)):
+                    break
+                time.sleep(0.02)
+            assert proc.poll() is None, f"{command[0]} ended before it could be killed"
+            assert list(folder.glob(pattern)), f"nothing matching {pattern} in {folder}"
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=30)
+
+    return run
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Run the tests that need no kernel first (:data:`KERNEL_FREE`, while the heights
     kernel compiles), then the longest: the hidden-effect cases of ``ci_subset`` (a

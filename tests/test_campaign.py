@@ -293,7 +293,9 @@ if __name__ == "__main__":
 '''
 
 
-def test_a_killed_campaign_resumes_without_recomputing(tmp_path: Path, client: Client) -> None:
+def test_a_killed_campaign_resumes_without_recomputing(
+    tmp_path: Path, client: Client, kill_when_written
+) -> None:
     """The process that runs a campaign (and its local cluster) is killed (SIGKILL) after
     its first results: nothing appears at OUT, the finished results stay in OUT.partial,
     and ``resume`` (here on another cluster) runs only the others, leaving the finished
@@ -302,25 +304,7 @@ def test_a_killed_campaign_resumes_without_recomputing(tmp_path: Path, client: C
     script = tmp_path / "killed.py"
     script.write_text(_KILLED_SCRIPT)
     out, partial = tmp_path / "camp", tmp_path / "camp.partial"
-    proc = subprocess.Popen(
-        [sys.executable, str(script), str(out)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        start_new_session=True,  # the script and its local cluster: one group to kill
-    )
-    try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and proc.poll() is None:
-            if list((partial / "tasks").glob("t*.json")):
-                break
-            time.sleep(0.02)
-        assert proc.poll() is None, "the campaign ended before it could be killed"
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=30)
+    kill_when_written([sys.executable, str(script), str(out)], partial / "tasks", "t*.json")
     assert not out.exists()  # OUT appears only when the campaign completes
     finished = snapshot(partial / "tasks")
     assert 1 <= len(finished) < 5

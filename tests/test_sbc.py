@@ -231,30 +231,16 @@ def test_sbc_runs_on_a_dask_scheduler_with_two_worker_processes(
 # (b) a killed campaign resumes without recomputing finished replicates
 # ----------------------------------------------------------------------------------------
 @pytest.mark.slow  # ~20-35 s; a killed campaign's resume in the fast suite: test_campaign.py
-def test_killed_campaign_resumes_without_recomputing(tmp_path: Path, design: Path) -> None:
+def test_killed_campaign_resumes_without_recomputing(
+    tmp_path: Path, design: Path, kill_when_written
+) -> None:
     out = tmp_path / "sbc"
     partial = tmp_path / "sbc.partial"
     args = ["sbc", str(design), "--out", str(out), "--replicates", "3", "--seed", "4"]
     args += MACHINERY
-    proc = subprocess.Popen(
-        [BIN / "granbayes", *args, "--workers", "1"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        start_new_session=True,  # the CLI and its local cluster: one group to kill
+    kill_when_written(
+        [BIN / "granbayes", *args, "--workers", "1"], partial / "tasks", "replicate-*.json"
     )
-    try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and proc.poll() is None:
-            if list((partial / "tasks").glob("replicate-*.json")):
-                break
-            time.sleep(0.05)
-        assert proc.poll() is None, "the campaign ended before it could be killed"
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=30)
     assert not out.exists()  # the output appears only when the campaign completes
     finished = {
         p.name: (p.read_bytes(), p.stat().st_mtime_ns)
