@@ -66,6 +66,28 @@ def test_registry_has_the_three_kinds() -> None:
     assert KINDS["intrusions"].unit_dim == "test"
 
 
+def test_the_built_in_kinds_figures_name_functions_of_the_figures_module() -> None:
+    """Each built-in kind names its figures (``FigureName``, so that importing the registry
+    does not import matplotlib): every name is a function of ``granbayes.figures``, and
+    the name survives pickling (Dask ships kinds to its workers)."""
+    import pickle
+    import subprocess
+    import sys
+
+    import granbayes.figures as figures
+    from granbayes.kinds._kind import FigureName
+
+    for name in ("heights", "trajectories", "intrusions"):
+        assert KINDS[name].figures, name
+        for stem, draw in KINDS[name].figures.items():
+            assert isinstance(draw, FigureName), (name, stem)
+            assert callable(getattr(figures, draw.name, None)), (name, stem, draw.name)
+            assert pickle.loads(pickle.dumps(draw)) == draw
+    code = "import sys, granbayes.kinds; print('matplotlib' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.stdout.strip() == "False", out.stderr
+
+
 def test_load_measurements_reads_every_file_and_selects(lab_folder: Path) -> None:
     exp = Experiment()
     every = load_measurements(lab_folder, exp)
