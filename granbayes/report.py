@@ -11,6 +11,7 @@ and :func:`environment` (the package versions and the machine, for provenance).
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import math
 import tomllib
@@ -281,14 +282,25 @@ def _kind_cell_lines(dt: xr.DataTree, kinds: list, out: Path, written: list[Path
     return lines
 
 
-#: How each figure is saved: ``savefig`` keywords by file name (default: 120 dpi, and a
-#: tight bounding box unless the figure lays itself out, see :func:`_save_figures`).
+#: How each figure is saved: ``savefig`` keywords by file name pattern (default: 120 dpi,
+#: and a tight bounding box unless the figure lays itself out, see :func:`_save_figures`).
+#: The corner plots lay themselves out too (corner.py's margins, and room for the title
+#: made by :func:`granbayes.figures.plot_corner`): cropping drew each twice.
 _SAVE = {
     "prior_posterior.png": {"dpi": 110},
     "loo_pit.png": {"dpi": 110},
     "trace.png": {"dpi": 110},
     "rank.png": {"dpi": 110},
+    "corner_phi*.png": {"dpi": 120},
 }
+
+
+def _save_options(name: str) -> dict:
+    """``savefig`` keywords of the figure file ``name`` (:data:`_SAVE`)."""
+    for pattern, options in _SAVE.items():
+        if fnmatch.fnmatchcase(name, pattern):
+            return dict(options)
+    return {"dpi": 120, "bbox_inches": "tight"}
 
 
 def _save_figures(figs: Mapping[str, Figure], out: Path) -> list[Path]:
@@ -297,7 +309,7 @@ def _save_figures(figs: Mapping[str, Figure], out: Path) -> list[Path]:
 
     written = []
     for name, fig in figs.items():
-        kwargs = dict(_SAVE.get(name, {"dpi": 120, "bbox_inches": "tight"}))
+        kwargs = _save_options(name)
         if isinstance(fig.get_layout_engine(), ConstrainedLayoutEngine):
             # constrained layout already fits every label inside the figure; a tight box
             # would draw the whole figure a second time to measure it (a third of a fit

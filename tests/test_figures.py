@@ -85,3 +85,63 @@ def test_trace_panels_of_a_parameter_with_a_named_coordinate():
     fig = figures.plot_trace(tree, ["k"])
     titles = [ax.get_title() for ax in fig.axes if ax.get_visible() and ax.lines]
     assert titles == ["command = single", "command = stutter"]
+
+
+@pytest.mark.parametrize(
+    "value, minus, plus, text",
+    [
+        (1857.3, 93.5, 81.3, "$1857^{+81}_{-94}$"),  # two digits of the smaller error
+        (11.83, 5.49, 6.29, "$11.8^{+6.3}_{-5.5}$"),
+        (12345.0, 930.0, 1020.0, "$12340^{+1020}_{-930}$"),  # rounded to tens
+        (0.5, 0.1, 0.2, "$0.50^{+0.20}_{-0.10}$"),
+        (5.0, 0.0, 0.0, "$5^{+0}_{-0}$"),  # no error: three significant digits
+    ],
+)
+def test_a_value_is_printed_to_the_precision_of_its_errors(value, minus, plus, text):
+    assert figures.value_with_errors(value, minus, plus) == text
+
+
+def _text_boxes(fig) -> tuple[list, object]:
+    """Window extents of the figure's title and of every axes title, after a draw."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    titles = [ax.title for ax in fig.axes if ax.get_visible() and ax.get_title()]
+    return [t.get_window_extent(renderer) for t in titles], fig._suptitle.get_window_extent(
+        renderer
+    )
+
+
+def test_a_corner_plot_titles_its_marginals_clear_of_the_figure_title_inside_the_figure():
+    """Saved uncropped (no second draw), so every title must lie inside the figure; the
+    figure's two-line title used to overlap the first marginal's."""
+    from granbayes.testing import fake_fit
+
+    dt = fake_fit(3, terms=("depth", "drag"))
+    fig = figures.plot_corner(dt, float(dt.posterior["phi"].values[0]), ["k", "c_d", "sigma_mm"])
+    titles, suptitle = _text_boxes(fig)
+    assert len(titles) == 3
+    assert "\n" in fig._suptitle.get_text()  # SYNTHETIC label and the title
+    width, height = fig.bbox.width, fig.bbox.height
+    for box in [*titles, suptitle]:
+        assert box.x0 >= 0 and box.y0 >= 0 and box.x1 <= width and box.y1 <= height
+    for box in titles:
+        assert not box.overlaps(suptitle)
+    k = next(ax.get_title() for ax in fig.axes if ax.get_title().startswith("k "))
+    assert "e+" not in k and k.startswith("k [N/m] = $")
+
+
+def test_a_rank_plot_names_units_volume_fractions_and_ensembles():
+    from granbayes.testing import fake_fit
+
+    dt = fake_fit(3, terms=("depth", "drag"))
+    fig = figures.plot_rank(dt, ["k", "c_d"])
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert titles and all(t.split("\n")[0] in ("k [N/m]", "c_d [kg/m]") for t in titles)
+    assert all("φ = " in t for t in titles)
+    (legend,) = fig.legends
+    n_ens = json.loads(dt.attrs["runs"])[0]["n_ensembles"]
+    assert [t.get_text() for t in legend.get_texts()] == [f"ensemble {e}" for e in range(n_ens)]
+    assert "SYNTHETIC" in fig._suptitle.get_text()

@@ -19,7 +19,8 @@ by ``arviz-plots`` (those come from ``pyplot``: close them once saved).
   :func:`plot_coefficients_vs_phi`, and their shared :data:`COMMAND_COLORS`,
   :data:`COMMAND_MARKERS`, :func:`command_offsets`, :func:`panel_grid`.
 * Labels: :func:`data_label` (the "SYNTHETIC data" label of every figure of synthetic
-  data), :func:`source_label`, :func:`param_label`, :func:`param_unit`.
+  data), :func:`source_label`, :func:`param_label`, :func:`param_unit`, and
+  :func:`value_with_errors` (an estimate to the precision of its interval).
 """
 
 from ._analyses import (
@@ -50,7 +51,7 @@ from ._fit import (
 )
 from ._jumps import REGIME_COLORS, plot_hard_ground, plot_jumps, plot_trajectory
 from ._kinds import plot_intrusions, plot_tracked_jumps
-from ._style import data_label, param_label, param_unit, source_label
+from ._style import data_label, param_label, param_unit, source_label, value_with_errors
 
 __all__ = [
     "COMMAND_COLORS",
@@ -85,4 +86,5 @@ __all__ = [
     "plot_valleys",
     "plot_vs_kappa",
     "source_label",
+    "value_with_errors",
 ]

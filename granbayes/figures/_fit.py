@@ -25,7 +25,7 @@ from ..stats._loo import _ignore_pareto_k_warning, _pit_tree
 from ..stats._sbc import _sbc_dataset
 from ..stats._summaries import _n_ensembles
 from ._analyses import panel_grid
-from ._style import COLORS, data_label, param_label
+from ._style import COLORS, data_label, param_label, value_with_errors
 
 
 def plot_corner(
@@ -60,8 +60,6 @@ def plot_corner(
         fig=fig,
         labels=[param_label(n) for n in names],
         quantiles=[0.05, 0.5, 0.95],
-        show_titles=True,
-        title_fmt=".3g",
         truths=truths,
         truth_color="#D55E00",
         bins=30,
@@ -69,12 +67,22 @@ def plot_corner(
         # density and contours, not the ~3,000 draws as points (half the drawing time)
         plot_datapoints=False,
     )
+    # each marginal's median and 5-95% interval as its title, to the precision of the
+    # interval (corner.py's one ``title_fmt`` for every parameter printed k as 1.86e+03)
+    grid = np.asarray(fig.axes).reshape(len(names), len(names))
+    for i, n in enumerate(names):
+        lo, med, hi = np.quantile(samples[:, i], [0.05, 0.5, 0.95])
+        grid[i, i].set_title(f"{param_label(n)} = {value_with_errors(med, med - lo, hi - med)}")
     title = f"Posterior at φ = {phi:g} (lines: 5%, 50%, 95%)"
     if truth is not None:
         title += "; orange: synthetic truth"
     if data_label(dt):
         title = f"{data_label(dt)}\n{title}"
-    fig.suptitle(title, y=1.0)
+    # corner.py leaves room for the top panel's title only: make room for the figure's
+    # title above it, so that the figure is complete without cropping (savefig once)
+    height = fig.get_size_inches()[1]
+    fig.subplots_adjust(top=1.0 - (0.5 + 0.25 * (title.count("\n") + 1)) / height)
+    fig.suptitle(title, y=1.0 - 0.08 / height, va="top")
     return fig
 
 
@@ -309,15 +317,36 @@ def plot_rank(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
     ess = run_diagnostics(dt)["ess_min"].astype(float)
     n_draws = dt.posterior.sizes["chain"] * dt.posterior.sizes["draw"]
     factor = math.ceil(n_draws / ess.min()) if ess.notna().all() and ess.min() > 0 else None
+    from matplotlib.lines import Line2D
+
     pc = azp.plot_rank(
         tree,
         var_names=list(var_names),
         thin=True,
         stats={"thin": {"factor": factor if factor is not None else "auto"}},
         backend="matplotlib",
+        labeller=_UnitLabeller({n: param_label(n) for n in var_names}),
         figure_kwargs={"layout": "constrained"},  # titles clear of the row above's labels
+        color=list(COLORS),  # an ensemble's colour in the trace plot too
     )
-    return pc.viz["figure"].item()
+    fig = pc.viz["figure"].item()
+    for ax in fig.axes:
+        ax.title.set_fontsize(9)
+    # one colour per independent ensemble (the chains of the stopping rule's R-hat)
+    n_ens = tree["posterior"].sizes["chain"]
+    handles = [
+        Line2D([], [], color=line.get_color(), label=f"ensemble {e}")
+        for e, line in enumerate(fig.axes[0].get_lines()[:n_ens])
+    ]
+    fig.legend(handles=handles, loc="outside lower center", ncols=n_ens, fontsize=8)
+    thinned = f"every {factor}th draw" if factor is not None else "draws thinned by ArviZ"
+    title = (
+        "Rank plots: ECDF of each ensemble's ranks among all draws minus the uniform CDF "
+        f"({thinned}); p: ArviZ's multi-chain uniformity test"
+    )
+    label = data_label(dt)
+    fig.suptitle(f"{label}\n{title}" if label else title, fontsize=9)
+    return fig
 
 
 def _draw_uniform_band(fig, n: int, band_prob: float, seed: int) -> None:

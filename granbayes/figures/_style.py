@@ -100,3 +100,40 @@ def param_label(name: str) -> str:
         return parameter(name).label
     except KeyError:
         return f"{name} []"
+
+
+def value_with_errors(value: float, minus: float, plus: float) -> str:
+    """``value`` with its lower and upper errors as mathtext, to the errors' precision.
+
+    Rounded to two significant digits of the smaller error (``1857^{+81}_{-94}``,
+    ``11.8^{+6.3}_{-5.5}``); ``.3g`` where the errors are zero or not finite.
+
+    Parameters
+    ----------
+    value : float
+        The estimate (e.g. a posterior median), in the parameter's unit.
+    minus, plus : float
+        Distances from ``value`` to the interval's lower and upper ends (>= 0).
+
+    Returns
+    -------
+    str
+        A mathtext string, e.g. ``"$1857^{+81}_{-94}$"``.
+    """
+    smaller = min(minus, plus)
+    if not (np.isfinite(smaller) and smaller > 0 and np.isfinite(value)):
+        return f"${value:.3g}^{{+{plus:.3g}}}_{{-{minus:.3g}}}$"
+    magnitude = int(np.floor(np.log10(smaller)))
+    decimals = max(0, 1 - magnitude)
+    step = 10.0 ** (magnitude - 1)  # the last digit kept when decimals = 0: 1, 10, 100...
+    if decimals == 0:
+
+        def text(x: float) -> str:
+            return f"{round(x / step) * step:.0f}"
+
+    else:
+
+        def text(x: float) -> str:
+            return f"{x:.{decimals}f}"
+
+    return f"${text(value)}^{{+{text(plus)}}}_{{-{text(minus)}}}$"
