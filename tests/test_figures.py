@@ -145,3 +145,13 @@ def test_a_rank_plot_names_units_volume_fractions_and_ensembles():
     n_ens = json.loads(dt.attrs["runs"])[0]["n_ensembles"]
     assert [t.get_text() for t in legend.get_texts()] == [f"ensemble {e}" for e in range(n_ens)]
     assert "SYNTHETIC" in fig._suptitle.get_text()
+
+
+def test_every_robot_parameter_a_fit_can_sample_is_labelled_with_its_unit():
+    from granbayes._likelihood import CALIBRATED_KEYS
+
+    for name in CALIBRATED_KEYS:
+        assert figures.param_unit(name), name
+        assert not figures.param_label(name).endswith("[]"), name
+    assert figures.param_label("k_spring") == "k_spring [N/m]"
+    assert figures.param_label("amplitude_mm") == "stroke amplitude [mm]"

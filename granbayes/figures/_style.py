@@ -7,6 +7,7 @@ from collections.abc import Iterable
 import numpy as np
 import xarray as xr
 
+from .._priors import CALIBRATION_UNITS
 from ..forces import parameter
 
 #: Label and unit of the noise parameter; those of the force-term parameters are in the
@@ -17,6 +18,17 @@ _NOISE_LABELS: dict[str, tuple[str, str]] = {
     "frame_sd_rod_mm": ("σ_rod [mm]", "mm"),
     "frame_tau_ms": ("τ_frame [ms]", "ms"),
     "force_sd_N": ("σ_F [N]", "N"),
+}
+
+#: Labels of the robot parameters a calibration leaves uncertain (sampled with the law).
+_ROBOT_LABELS: dict[str, tuple[str, str]] = {
+    name: (
+        "stroke amplitude [mm]"
+        if name == "amplitude_mm"
+        else f"{name} [{unit.replace('^3', '³')}]",
+        unit,
+    )
+    for name, unit in CALIBRATION_UNITS.items()
 }
 
 
@@ -68,14 +80,15 @@ def param_unit(name: str) -> str | None:
     Parameters
     ----------
     name : str
-        A force-term parameter or an observation model's (``sigma_mm``, ...).
+        A force-term parameter, an observation model's (``sigma_mm``, ...) or a robot
+        parameter sampled with its calibration (``k_spring``, ...).
 
     Returns
     -------
     str or None
     """
-    if name in _NOISE_LABELS:
-        return _NOISE_LABELS[name][1]
+    if name in _NOISE_LABELS or name in _ROBOT_LABELS:
+        return (_NOISE_LABELS | _ROBOT_LABELS)[name][1]
     try:
         return parameter(name).unit
     except KeyError:
@@ -88,14 +101,15 @@ def param_label(name: str) -> str:
     Parameters
     ----------
     name : str
-        A force-term parameter or an observation model's (``sigma_mm``, ...).
+        A force-term parameter, an observation model's (``sigma_mm``, ...) or a robot
+        parameter sampled with its calibration (``k_spring [N/m]``, ...).
 
     Returns
     -------
     str
     """
-    if name in _NOISE_LABELS:
-        return _NOISE_LABELS[name][0]
+    if name in _NOISE_LABELS or name in _ROBOT_LABELS:
+        return (_NOISE_LABELS | _ROBOT_LABELS)[name][0]
     try:
         return parameter(name).label
     except KeyError:
