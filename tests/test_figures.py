@@ -155,3 +155,46 @@ def test_every_robot_parameter_a_fit_can_sample_is_labelled_with_its_unit():
         assert not figures.param_label(name).endswith("[]"), name
     assert figures.param_label("k_spring") == "k_spring [N/m]"
     assert figures.param_label("amplitude_mm") == "stroke amplitude [mm]"
+
+
+def test_a_residual_map_of_one_volume_fraction_keeps_its_long_title_inside_the_figure():
+    import pandas as pd
+
+    cells = pd.DataFrame(
+        {
+            "command": ["single", "preload", "delayed_stutter"],
+            "phi": 0.602,
+            "freq_hz": 10.0,
+            "amplitude_mm": 20.0,
+            "delay_ms": 50.0,
+            "settle_periods": 3.0,
+            "mean_residual_mm": [0.6, -1.2, 0.0],
+            "z": [0.3, -0.6, 3.5],
+        }
+    )
+    title = "SYNTHETIC data (tests/test_figures.py seed=3): selected depth + drag + compaction"
+    fig = figures.plot_residual_heatmap(cells, title, 2.93)
+    _, suptitle = _text_boxes(fig)
+    assert suptitle.x0 >= 0 and suptitle.x1 <= fig.bbox.width and suptitle.y1 <= fig.bbox.height
+    assert fig._suptitle.get_text().replace("\n", " ").startswith(title)
+
+
+def test_a_predictive_check_of_one_volume_fraction_draws_its_bands():
+    """A lone volume fraction has no neighbour to join a band to: drawn as boxes."""
+    from granbayes.testing import fake_fit
+
+    dt = fake_fit(3, terms=("depth", "drag"))
+    phi = float(dt.observed_data["phi"].values[0])
+    jumps = np.flatnonzero(dt.observed_data["phi"].values == phi)
+    one = xr.DataTree.from_dict(
+        {
+            "observed_data": dt.observed_data.to_dataset().isel(jump=jumps),
+            "posterior_predictive": dt.posterior_predictive.to_dataset().isel(jump=jumps),
+        }
+    )
+    one.attrs = dt.attrs
+    n_freq = len(np.unique(one.observed_data["freq_hz"].values))
+    fig = figures.plot_predictive(one)
+    for ax in fig.axes:
+        widths = [np.ptp(p.vertices[:, 0]) for c in ax.collections for p in c.get_paths()]
+        assert sum(w > 0 for w in widths) == 2 * n_freq  # light and dark band per frequency

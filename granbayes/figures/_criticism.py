@@ -7,6 +7,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from ..commands import COMMAND_NAMES
+from ._style import wrap_title
 
 _SETTING_UNITS = {"amplitude_mm": "mm", "delay_ms": "ms", "settle_periods": "T"}
 
@@ -52,7 +53,7 @@ def plot_residual_heatmap(residuals: pd.DataFrame, title: str, z_threshold: floa
     commands = list(dict.fromkeys(residuals.sort_values("order")["row"]))
     vmax = max(5.0, float(np.nanmax(np.abs(residuals["mean_residual_mm"]))))
     fig = Figure(
-        figsize=(1.25 * len(phis) * len(freqs) + 3.0, 0.55 * len(commands) + 1.8),
+        figsize=(max(5.0, 1.25 * len(phis) * len(freqs) + 3.0), 0.55 * len(commands) + 1.8),
         layout="constrained",
     )
     axes = fig.subplots(1, len(freqs), squeeze=False, sharey=True)[0]
@@ -89,7 +90,12 @@ def plot_residual_heatmap(residuals: pd.DataFrame, title: str, z_threshold: floa
         ax.set_title(f"{f:g} Hz" if f else "")
     fig.colorbar(image, ax=list(axes), label="mean residual: observed − simulated [mm]")
     fig.suptitle(
-        title + f"\nmean residual [mm] and lack-of-fit z per cell (framed: |z| > {z_threshold:g})",
+        wrap_title(
+            title
+            + f"\nmean residual [mm] and lack-of-fit z per cell (framed: |z| > {z_threshold:g})",
+            fig.get_size_inches()[0],
+            10,
+        ),
         fontsize=10,
     )
     return fig

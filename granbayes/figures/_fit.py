@@ -118,6 +118,8 @@ def plot_predictive(dt: xr.DataTree, ci_prob: float = CI_PROB) -> Figure:
     sim = pp["height_sim_mm"].values.reshape(-1, len(phi))
     phis = np.unique(phi)
     dphi = 0.0015 * (len(freqs) > 1)
+    spacing = float(np.min(np.diff(phis))) if len(phis) > 1 else 0.01
+    half = 0.4 * dphi if dphi else 0.15 * spacing  # half-width of a lone volume fraction's box
     for ax, cmd in zip(axes, commands, strict=True):
         for j, f in enumerate(freqs):
             color = COLORS[j % len(COLORS)]
@@ -136,6 +138,15 @@ def plot_predictive(dt: xr.DataTree, ci_prob: float = CI_PROB) -> Figure:
             ax.fill_between(phis + off, b[:, 0], b[:, 4], color=color, alpha=0.15, lw=0)
             ax.fill_between(phis + off, b[:, 1], b[:, 3], color=color, alpha=0.4, lw=0)
             ax.plot(phis + off, b[:, 2], color=color, lw=1.2, label=f"{f:g} Hz")
+            # a volume fraction with no measured neighbour in its series has no band to
+            # join (one packing, or a gap): its bands are drawn as boxes
+            finite = np.isfinite(b[:, 2])
+            alone = finite & ~np.r_[False, finite[:-1]] & ~np.r_[finite[1:], False]
+            for i in np.flatnonzero(alone):
+                xs = phis[i] + off + np.array([-half, half])
+                ax.fill_between(xs, b[i, 0], b[i, 4], color=color, alpha=0.15, lw=0)
+                ax.fill_between(xs, b[i, 1], b[i, 3], color=color, alpha=0.4, lw=0)
+                ax.plot(xs, [b[i, 2]] * 2, color=color, lw=1.2)
             sel = (command == cmd) & (freq == f)
             ax.plot(
                 phi[sel] + off,

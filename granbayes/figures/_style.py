@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Iterable
 
 import numpy as np
@@ -151,3 +152,30 @@ def value_with_errors(value: float, minus: float, plus: float) -> str:
             return f"{x:.{decimals}f}"
 
     return f"${text(value)}^{{+{text(plus)}}}_{{-{text(minus)}}}$"
+
+
+def wrap_title(text: str, width_in: float, fontsize: float) -> str:
+    """``text`` with each line wrapped to fit a figure ``width_in`` inches wide.
+
+    A figure title wider than its figure is cut at both sides (a residual map of one
+    volume fraction is narrow). The width of a character is taken as 0.6 of the font
+    size, a bound for DejaVu Sans's average.
+
+    Parameters
+    ----------
+    text : str
+        The title, lines separated by newlines.
+    width_in : float
+        Width of the figure [inch].
+    fontsize : float
+        Font size of the title [pt].
+
+    Returns
+    -------
+    str
+    """
+    chars = max(20, int(width_in * 72.0 / (0.6 * fontsize)))
+    return "\n".join(
+        textwrap.fill(line, chars, break_long_words=False) if line else line
+        for line in text.split("\n")
+    )
