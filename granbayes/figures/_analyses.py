@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike
 
 from .._experiment import Experiment
 from ..commands import COMMAND_NAMES
+from ._style import suptitle
 
 if TYPE_CHECKING:
     from ..analysis.maps import MisfitMap
@@ -163,7 +164,7 @@ def plot_heights_vs_phi(
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("jump height [mm]")
     axes[0].legend(fontsize=8, loc="best", title="mean ± s.e.; dots: trials", title_fontsize=8)
-    fig.suptitle(title, fontsize=11)
+    suptitle(fig, title, fontsize=11)
     return fig
 
 
@@ -344,7 +345,7 @@ def plot_misfit_maps(m: MisfitMap, phi_c: float, title: str) -> Figure:
     ax.grid(alpha=0.3)
     ax.set_xlim(*_cd_limits(m))
     ax.set_ylim(m.k_n_per_m[0], m.k_n_per_m[-1])
-    fig.suptitle(title, fontsize=11)
+    suptitle(fig, title, fontsize=11)
     return fig
 
 
@@ -427,7 +428,7 @@ def plot_valleys(maps: Sequence[MisfitMap], phi_c: float, title: str) -> Figure:
         ax.legend(fontsize=8)
     ax1.set_title("max over both commands of the largest |sim − mean| / s.e.", fontsize=9)
     ax2.set_title("larger of the two RMS misfits [mm]", fontsize=9)
-    fig.suptitle(title, fontsize=11)
+    suptitle(fig, title, fontsize=11)
     return fig
 
 
@@ -519,7 +520,7 @@ def plot_optimum_vs_frequency(
             title=text,
             title_fontsize=8,
         )
-    fig.suptitle(title, fontsize=11)
+    suptitle(fig, title, fontsize=11)
     return fig
 
 
@@ -593,7 +594,7 @@ def plot_delay_curves(
         ax.set_xlabel("delay [ms]")
         ax.set_ylabel("expected jump height [mm]")
         ax.grid(alpha=0.3)
-    fig.suptitle(title, fontsize=11)
+    suptitle(fig, title, fontsize=11)
     return fig
 
 
@@ -658,7 +659,7 @@ def plot_optimum_vs_phi(results: Sequence[OptimumSearch], phi_c: float, title: s
         "most reliable jump per command: best 5th pct. of predictive height", fontsize=10
     )
     ax_e.legend(fontsize=8, loc="best")
-    fig.suptitle(title, fontsize=11)
+    suptitle(fig, title, fontsize=11)
     return fig
 
 
@@ -750,7 +751,7 @@ def plot_vs_kappa(
         handles=handles, loc="outside right upper", title="command", fontsize=8, title_fontsize=8
     )
     fig.supxlabel(caption, fontsize=8)
-    fig.suptitle(title, fontsize=11)
+    suptitle(fig, title, fontsize=11)
     return fig
 
 
@@ -814,7 +815,7 @@ def plot_added_mass(
         f"over {imp.duration_ms:.1f} ms ({imp.n_intervals} advancing episode(s))",
         fontsize=9,
     )
-    fig.suptitle(title, fontsize=11)
+    suptitle(fig, title, fontsize=11)
     return fig
 
 
@@ -888,5 +889,5 @@ def plot_coefficients_vs_phi(
             ax.grid(alpha=0.3, which="both")
             ax.set_title(f"{' + '.join(law['terms'])}: {pname}", fontsize=10)
     axes[0, 0].legend(fontsize=7.5, loc="best", title="90% intervals", title_fontsize=7.5)
-    fig.suptitle(title, fontsize=11)
+    suptitle(fig, title, fontsize=11)
     return fig

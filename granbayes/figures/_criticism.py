@@ -7,7 +7,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from ..commands import COMMAND_NAMES
-from ._style import wrap_title
+from ._style import suptitle
 
 _SETTING_UNITS = {"amplitude_mm": "mm", "delay_ms": "ms", "settle_periods": "T"}
 
@@ -89,13 +89,9 @@ def plot_residual_heatmap(residuals: pd.DataFrame, title: str, z_threshold: floa
         ax.set_xlabel("volume fraction φ [-]")
         ax.set_title(f"{f:g} Hz" if f else "")
     fig.colorbar(image, ax=list(axes), label="mean residual: observed − simulated [mm]")
-    fig.suptitle(
-        wrap_title(
-            title
-            + f"\nmean residual [mm] and lack-of-fit z per cell (framed: |z| > {z_threshold:g})",
-            fig.get_size_inches()[0],
-            10,
-        ),
+    suptitle(
+        fig,
+        title + f"\nmean residual [mm] and lack-of-fit z per cell (framed: |z| > {z_threshold:g})",
         fontsize=10,
     )
     return fig

@@ -11,7 +11,6 @@ once saved.
 from __future__ import annotations
 
 import math
-import textwrap
 import warnings
 from collections.abc import Mapping, Sequence
 
@@ -25,7 +24,7 @@ from ..stats._loo import _ignore_pareto_k_warning, _pit_tree
 from ..stats._sbc import _sbc_dataset
 from ..stats._summaries import _n_ensembles
 from ._analyses import panel_grid
-from ._style import COLORS, data_label, param_label, value_with_errors
+from ._style import COLORS, data_label, param_label, suptitle, value_with_errors
 
 
 def plot_corner(
@@ -81,8 +80,8 @@ def plot_corner(
     # corner.py leaves room for the top panel's title only: make room for the figure's
     # title above it, so that the figure is complete without cropping (savefig once)
     height = fig.get_size_inches()[1]
-    fig.subplots_adjust(top=1.0 - (0.5 + 0.25 * (title.count("\n") + 1)) / height)
-    fig.suptitle(title, y=1.0 - 0.08 / height, va="top")
+    lines = suptitle(fig, title, y=1.0 - 0.08 / height, va="top").get_text().count("\n") + 1
+    fig.subplots_adjust(top=1.0 - (0.5 + 0.25 * lines) / height)
     return fig
 
 
@@ -163,7 +162,8 @@ def plot_predictive(dt: xr.DataTree, ci_prob: float = CI_PROB) -> Figure:
     axes[0].set_ylabel("jump height H [mm]")
     axes[0].legend(title="actuation", fontsize=8)
     label = data_label(dt)
-    fig.suptitle(
+    suptitle(
+        fig,
         (f"{label}\n" if label else "")
         + "Posterior predictive check: points = measured jumps; dark band = simulated height, "
         f"light band = new jump ({ci_prob:.0%} equal-tailed)",
@@ -226,7 +226,7 @@ def plot_parameters_vs_phi(
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     if data_label(dt):
-        fig.suptitle(data_label(dt), fontsize=10)
+        suptitle(fig, data_label(dt), fontsize=10)
     return fig
 
 
@@ -287,7 +287,7 @@ def plot_trace(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
         axes[0].legend(fontsize=7)
     title = "Walkers' traces (thin) and each ensemble's median over its walkers (thick)"
     label = data_label(dt)
-    fig.suptitle(f"{label}\n{title}" if label else title, fontsize=10)
+    suptitle(fig, f"{label}\n{title}" if label else title, fontsize=10)
     return fig
 
 
@@ -356,7 +356,7 @@ def plot_rank(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
         f"({thinned}); p: ArviZ's multi-chain uniformity test"
     )
     label = data_label(dt)
-    fig.suptitle(f"{label}\n{title}" if label else title, fontsize=9)
+    suptitle(fig, f"{label}\n{title}" if label else title, fontsize=9)
     return fig
 
 
@@ -417,7 +417,8 @@ def plot_loo_pit(
         ax.set_title("")
         ax.set_xlabel("LOO-PIT of the jump height H [-] (uniform if calibrated)")
         ax.set_ylabel("ECDF − uniform CDF [-]")
-    fig.suptitle(
+    suptitle(
+        fig,
         (title + "\n" if title else "")
         + f"LOO-PIT calibration of {n} jumps; grey: {band_prob:.0%} simultaneous band "
         "of a calibrated model",
@@ -512,7 +513,8 @@ def plot_prior_posterior(
         for line, group in zip(fig.axes[0].get_lines()[:2], ("prior", "posterior"), strict=False)
     ]
     fig.legend(handles=handles, loc="outside lower center", ncols=2, fontsize=8)
-    fig.suptitle(
+    suptitle(
+        fig,
         (title + "\n" if title else "")
         + "Prior and posterior marginal density per volume fraction\n"
         + "(a posterior as wide as its prior: the data do not determine the parameter)",
@@ -569,16 +571,20 @@ def plot_sbc_ecdf(
         sample_dims=["replicate"],
         envelope_prob=band_prob,
         backend="matplotlib",
+        labeller=_UnitLabeller({name: param_label(name) for name in pit}),
         col_wrap=n_col,
         figure_kwargs={"figsize": (2.8 * n_col + 0.6, 2.3 * n_row + 0.8)},
     )
     fig = pc.viz["figure"].item()
     _draw_uniform_band(fig, n, band_prob, seed)
+    for ax in fig.axes:
+        ax.title.set_fontsize(9)
+        if ax.get_xlabel():
+            ax.set_xlabel("normalised rank of the truth [-]", fontsize=8)
     text = (title + "\n" if title else "") + (
         f"ECDF - uniform of the normalised ranks ({n} replicates); grey: "
         f"{band_prob:.0%} simultaneous band"
     )
-    width = max(30, int(13 * fig.get_figwidth()))  # characters of 9-pt text per line
-    fig.suptitle("\n".join(textwrap.fill(line, width) for line in text.split("\n")), fontsize=9)
+    suptitle(fig, text, fontsize=9)
     fig.tight_layout()
     return fig

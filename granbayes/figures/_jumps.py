@@ -30,6 +30,7 @@ from matplotlib.patches import Patch
 from numpy.typing import ArrayLike
 
 from .._simulator import Status, Trajectory
+from ._style import suptitle
 
 if TYPE_CHECKING:
     pass
@@ -312,7 +313,7 @@ def plot_trajectory(
         status = traj.status.label if isinstance(traj.status, Status) else str(traj.status)
         shown = f"height {traj.height_mm:.1f} mm" if math.isfinite(traj.height_mm) else "no height"
         title = f"{_label(traj.program.name, 60)} jump: {shown} ({status})"
-    container.suptitle(title, fontsize=_FONT["suptitle"])
+    suptitle(container, title, fontsize=_FONT["suptitle"])
     return fig
 
 
@@ -376,7 +377,7 @@ def plot_jumps(trajs: Mapping[str, Trajectory], title: str) -> Figure:
         fontsize=_FONT["legend"],
         frameon=False,
     )
-    fig.suptitle(title, fontsize=_FONT["suptitle"])
+    suptitle(fig, title, fontsize=_FONT["suptitle"])
     return fig
 
 
@@ -464,7 +465,7 @@ def plot_hard_ground(
     _style(ax)
     ax.tick_params(top=False)
     ax.legend(loc="upper right", fontsize=_FONT["legend"])
-    fig.suptitle(
-        title or "Rigid floor: jump height vs actuator frequency", fontsize=_FONT["suptitle"]
+    suptitle(
+        fig, title or "Rigid floor: jump height vs actuator frequency", fontsize=_FONT["suptitle"]
     )
     return fig

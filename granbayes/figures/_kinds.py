@@ -7,7 +7,7 @@ import xarray as xr
 from matplotlib.figure import Figure
 
 from ..stats import CI_PROB, eti_probs
-from ._style import COLORS, data_label
+from ._style import COLORS, data_label, suptitle
 
 __all__ = ["plot_intrusions", "plot_tracked_jumps"]
 
@@ -108,7 +108,7 @@ def plot_tracked_jumps(dt: xr.DataTree, ci_prob: float = CI_PROB, max_jumps: int
     head = f"Tracked jumps: measured frames over {ci_prob:.0%} posterior predictive bands"
     head += " (shaded: push-off, flight)"
     label = data_label(dt)
-    fig.suptitle(f"{label}\n{head}" if label else head)
+    suptitle(fig, f"{label}\n{head}" if label else head)
     return fig
 
 
@@ -164,5 +164,5 @@ def plot_intrusions(dt: xr.DataTree, ci_prob: float = CI_PROB) -> Figure:
     axes[0].legend(title="speed", fontsize=7)
     head = f"Intrusion tests: measured force over {ci_prob:.0%} posterior predictive bands"
     label = data_label(dt)
-    fig.suptitle(f"{label}\n{head}" if label else head)
+    suptitle(fig, f"{label}\n{head}" if label else head)
     return fig

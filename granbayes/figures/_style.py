@@ -179,3 +179,25 @@ def wrap_title(text: str, width_in: float, fontsize: float) -> str:
         textwrap.fill(line, chars, break_long_words=False) if line else line
         for line in text.split("\n")
     )
+
+
+def suptitle(fig, text: str, *, fontsize: float = 12.0, **kwargs):
+    """Set the title of ``fig`` (a Figure or SubFigure), wrapped to its width.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure or matplotlib.figure.SubFigure
+        The figure.
+    text : str
+        The title.
+    fontsize : float
+        Font size [pt] (matplotlib's default for a figure title is 12).
+    **kwargs
+        Passed to :meth:`matplotlib.figure.Figure.suptitle`.
+
+    Returns
+    -------
+    matplotlib.text.Text
+    """
+    width_in = fig.bbox.width / fig.dpi if fig.dpi else fig.get_size_inches()[0]
+    return fig.suptitle(wrap_title(text, width_in, fontsize), fontsize=fontsize, **kwargs)
