@@ -1,0 +1,69 @@
+"""Regenerate ``docs/figures/trajectories.png`` and ``intrusions.png`` (SYNTHETIC data).
+
+The README's figures of a joint fit of jump heights, tracked jumps and intrusion curves:
+the small lab of ``tests/test_kinds.py`` (``SMALL``: 2 volume fractions, the single jump,
+3 trials, one filmed per cell at 1000 frames/s with 0.2 mm correlated tracking noise,
+intrusions at 1 and 200 mm/s), simulated by the independent oracle
+(``granbayes.testing.synthetic_lab_data``, seed 11; truth k = 3000 N/m, c_d = 20 kg/m),
+fitted as a user would (``granbayes fit DIR --terms depth,drag --seed 2``), and the two
+figures of the report copied here.
+
+Usage: ``python docs/joint_fit_figures.py`` (about half a minute on 2 cores).
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from granbayes._cli import main
+from granbayes.testing import LabDesign, synthetic_lab_data, write_lab_experiment
+
+HERE = Path(__file__).resolve().parent / "figures"
+
+#: ``tests/test_kinds.py``'s ``SMALL`` design and ``TRUTH`` (kept equal by hand).
+DESIGN = LabDesign(
+    phis=(0.602, 0.622),
+    commands=("single",),
+    trials=3,
+    sigma_mm=1.0,
+    tracked_trials=1,
+    fps=1000.0,
+    frame_sd_mm=0.2,
+    frame_rho=0.5,
+    clock_sd_frames=1.5,
+    track_from_s=-0.005,
+    track_after_end_s=0.03,
+    intrusion_speeds_mm_s=(1.0, 200.0),
+    intrusion_repeats=1,
+    depth_step_mm=1.0,
+    depth_max_mm=30.0,
+    force_sd_N=0.3,
+)
+LAW = {"k": 3000.0, "c_d": 20.0}
+SEED_DATA, SEED_FIT = 11, 2
+
+
+def make(out: Path = HERE) -> list[Path]:
+    """Simulate the lab, fit it and copy the two figures into ``out``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = write_lab_experiment(
+            Path(tmp) / "exp", synthetic_lab_data(LAW, seed=SEED_DATA, design=DESIGN)
+        )
+        report = Path(tmp) / "fit"
+        argv = ["fit", str(folder), "--terms", "depth,drag", "--seed", str(SEED_FIT)]
+        code = main([*argv, "--out", str(report), "--quiet"])
+        if code != 0:
+            raise SystemExit(f"granbayes fit exited with {code}")
+        return [
+            Path(shutil.copy(report / name, out / name))
+            for name in ("trajectories.png", "intrusions.png")
+        ]
+
+
+if __name__ == "__main__":
+    for path in make():
+        print(path)
+    sys.exit(0)
