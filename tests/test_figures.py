@@ -198,3 +198,17 @@ def test_a_predictive_check_of_one_volume_fraction_draws_its_bands():
     for ax in fig.axes:
         widths = [np.ptp(p.vertices[:, 0]) for c in ax.collections for p in c.get_paths()]
         assert sum(w > 0 for w in widths) == 2 * n_freq  # light and dark band per frequency
+
+
+def test_the_rank_test_takes_one_walker_in_turn_every_step_of_each_ensemble():
+    from granbayes.figures._fit import rank_test_draws
+
+    out = rank_test_draws(_fit(SAME), ["k"], step=3)["k"]
+    draws = np.arange(0, N_DRAW, 3)
+    assert out.sizes == {"chain": N_ENS, "draw": len(draws), "phi": len(PHIS)}
+    for e in range(N_ENS):
+        expected = 1000 * e + 100 * (np.arange(len(draws)) % WALKERS) + draws + 0.5
+        np.testing.assert_array_equal(out.values[e, :, 1], expected)
+    # ensembles that cannot be grouped: every walker a chain, thinned by the step
+    loose = rank_test_draws(_fit([]), ["k"], step=3)["k"]
+    assert loose.sizes == {"chain": N_ENS * WALKERS, "draw": len(draws), "phi": len(PHIS)}
