@@ -1,7 +1,7 @@
 """Regenerate ``docs/figures/trajectories.png`` and ``intrusions.png`` (SYNTHETIC data).
 
 The README's figures of a joint fit of jump heights, tracked jumps and intrusion curves:
-the small lab of ``tests/test_kinds.py`` (``SMALL``: 2 volume fractions, the single jump,
+the small lab ``granbayes.testing.SMALL_LAB`` (2 volume fractions, the single jump,
 3 trials, one filmed per cell at 1000 frames/s with 0.2 mm correlated tracking noise,
 intrusions at 1 and 200 mm/s), simulated by the independent oracle
 (``granbayes.testing.synthetic_lab_data``, seed 11; truth k = 3000 N/m, c_d = 20 kg/m),
@@ -19,29 +19,11 @@ import tempfile
 from pathlib import Path
 
 from granbayes._cli import main
-from granbayes.testing import LabDesign, synthetic_lab_data, write_lab_experiment
+from granbayes.testing import SMALL_LAB, synthetic_lab_data, write_lab_experiment
 
 HERE = Path(__file__).resolve().parent / "figures"
 
-#: ``tests/test_kinds.py``'s ``SMALL`` design and ``TRUTH`` (kept equal by hand).
-DESIGN = LabDesign(
-    phis=(0.602, 0.622),
-    commands=("single",),
-    trials=3,
-    sigma_mm=1.0,
-    tracked_trials=1,
-    fps=1000.0,
-    frame_sd_mm=0.2,
-    frame_rho=0.5,
-    clock_sd_frames=1.5,
-    track_from_s=-0.005,
-    track_after_end_s=0.03,
-    intrusion_speeds_mm_s=(1.0, 200.0),
-    intrusion_repeats=1,
-    depth_step_mm=1.0,
-    depth_max_mm=30.0,
-    force_sd_N=0.3,
-)
+#: ``tests/test_kinds.py``'s ``TRUTH`` (its design is ``SMALL_LAB``).
 LAW = {"k": 3000.0, "c_d": 20.0}
 SEED_DATA, SEED_FIT = 11, 2
 
@@ -50,7 +32,7 @@ def make(out: Path = HERE) -> list[Path]:
     """Simulate the lab, fit it and copy the two figures into ``out``."""
     with tempfile.TemporaryDirectory() as tmp:
         folder = write_lab_experiment(
-            Path(tmp) / "exp", synthetic_lab_data(LAW, seed=SEED_DATA, design=DESIGN)
+            Path(tmp) / "exp", synthetic_lab_data(LAW, seed=SEED_DATA, design=SMALL_LAB)
         )
         report = Path(tmp) / "fit"
         argv = ["fit", str(folder), "--terms", "depth,drag", "--seed", str(SEED_FIT)]

@@ -20,30 +20,12 @@ from granbayes._datatree import read_datatree
 from granbayes._experiment import Experiment, load_experiment
 from granbayes._likelihood import ObservationSettings, Simulated, TrajectoryBlock
 from granbayes.kinds import KINDS, kind_names, load_measurements
-from granbayes.testing import LabDesign, synthetic_lab_data, write_lab_experiment
+from granbayes.testing import SMALL_LAB, LabDesign, synthetic_lab_data, write_lab_experiment
 
 TRUTH = {"k": 3000.0, "c_d": 20.0}
 
-#: A small SYNTHETIC lab: 2 volume fractions, 1 command, 3 trials, one filmed per cell,
-#: intrusions at 2 speeds (generator granbayes.testing.synthetic_lab_data, seed 11).
-SMALL = LabDesign(
-    phis=(0.602, 0.622),
-    commands=("single",),
-    trials=3,
-    sigma_mm=1.0,
-    tracked_trials=1,
-    fps=1000.0,
-    frame_sd_mm=0.2,
-    frame_rho=0.5,
-    clock_sd_frames=1.5,
-    track_from_s=-0.005,
-    track_after_end_s=0.03,
-    intrusion_speeds_mm_s=(1.0, 200.0),
-    intrusion_repeats=1,
-    depth_step_mm=1.0,
-    depth_max_mm=30.0,
-    force_sd_N=0.3,
-)
+#: The small SYNTHETIC lab (generator granbayes.testing.synthetic_lab_data, seed 11).
+SMALL = SMALL_LAB
 
 
 @pytest.fixture(scope="module")

@@ -24,7 +24,8 @@ test the fitting code: the compiled kernel never makes its own test data
 * :func:`synthetic_lab_data`, a SYNTHETIC lab campaign made by the oracle only (jump
   heights with scatter, filmed jumps with AR(1) frame noise and clock offsets, intrusion
   tests with force noise, a robot off its nominal values, beds whose true phi scatters,
-  hidden effects), designed by a :class:`LabDesign` and returned as :class:`LabData`;
+  hidden effects), designed by a :class:`LabDesign` (:data:`SMALL_LAB`: a small lab of
+  every kind) and returned as :class:`LabData`;
   :func:`write_lab_experiment` writes it as an experiment folder;
 * :func:`replicate_measurements`, an experiment's own design (its jumps, tracked jumps
   and intrusion tests) with every value simulated by the oracle from a given truth and
@@ -79,7 +80,7 @@ from ._effects import (
     RateStiffening,
 )
 from ._fake import fake_fit
-from ._lab import LabData, LabDesign, synthetic_lab_data, write_lab_experiment
+from ._lab import SMALL_LAB, LabData, LabDesign, synthetic_lab_data, write_lab_experiment
 from ._oracle import (
     COMPACTION_LENGTH,
     PARAMETER_DEFAULTS,
@@ -105,6 +106,7 @@ __all__ = [
     "PauseStiffening",
     "QUICK_SAMPLER",
     "RateStiffening",
+    "SMALL_LAB",
     "TRACK_AFTER_END",
     "energy_test_box",
     "fake_fit",

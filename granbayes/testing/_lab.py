@@ -185,6 +185,30 @@ class LabDesign:
             build_command(command)  # refuses an unknown command
 
 
+#: A small SYNTHETIC lab of every kind of measurement: 2 volume fractions, the single jump,
+#: 3 trials, one filmed per cell at 1000 frames/s (0.2 mm AR(1) tracking noise, clock off by
+#: 1.5 frames sd), intrusion tests at 1 and 200 mm/s to 30 mm (0.3 N force noise). The
+#: design of the kinds' tests and of the README's joint fit (``docs/joint_fit_figures.py``).
+SMALL_LAB = LabDesign(
+    phis=(0.602, 0.622),
+    commands=("single",),
+    trials=3,
+    sigma_mm=1.0,
+    tracked_trials=1,
+    fps=1000.0,
+    frame_sd_mm=0.2,
+    frame_rho=0.5,
+    clock_sd_frames=1.5,
+    track_from_s=-0.005,
+    track_after_end_s=0.03,
+    intrusion_speeds_mm_s=(1.0, 200.0),
+    intrusion_repeats=1,
+    depth_step_mm=1.0,
+    depth_max_mm=30.0,
+    force_sd_N=0.3,
+)
+
+
 @dataclass(frozen=True)
 class LabData:
     """A SYNTHETIC experiment: the tables a lab would write, and the truth behind them.
