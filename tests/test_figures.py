@@ -212,3 +212,15 @@ def test_the_rank_test_takes_one_walker_in_turn_every_step_of_each_ensemble():
     # ensembles that cannot be grouped: every walker a chain, thinned by the step
     loose = rank_test_draws(_fit([]), ["k"], step=3)["k"]
     assert loose.sizes == {"chain": N_ENS * WALKERS, "draw": len(draws), "phi": len(PHIS)}
+
+
+def test_a_rank_plot_of_walkers_that_cannot_be_grouped_has_no_ensemble_legend():
+    from granbayes.testing import fake_fit
+
+    dt = fake_fit(3, terms=("depth", "drag"))
+    runs = json.loads(dt.attrs["runs"])
+    runs[0] = {**runs[0], "n_ensembles": runs[0]["n_ensembles"] + 1}  # runs disagree
+    dt.attrs["runs"] = json.dumps(runs)
+    fig = figures.plot_rank(dt, ["k"])
+    assert not fig.legends
+    assert "every walker a chain" in fig._suptitle.get_text()

@@ -302,9 +302,8 @@ def rank_test_draws(dt: xr.DataTree, var_names: Sequence[str], step: int) -> xr.
     p-values, ``step`` the draws over the smallest ESS as the rank plot takes it): every
     walker's draws thinned by ``step`` reject at alpha = 0.01 in 4 of 90, at 0.05 in 17;
     one walker in turn in 0 and 1 of 90 (at 0.2 in 11: conservative, for 12 draws per
-    ensemble). Where the
-    ensembles cannot be told apart (:func:`granbayes.stats.by_ensemble`), every walker is
-    a chain, thinned by ``step``.
+    ensemble). Where the ensembles cannot be told apart
+    (:func:`granbayes.stats.by_ensemble`), every walker is a chain, thinned by ``step``.
 
     Parameters
     ----------
@@ -386,18 +385,24 @@ def plot_rank(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
     fig = pc.viz["figure"].item()
     for ax in fig.axes:
         ax.title.set_fontsize(9)
-    # one colour per independent ensemble (the chains of the stopping rule's R-hat)
-    n_ens = tree["posterior"].sizes["chain"]
-    handles = [
-        Line2D([], [], color=line.get_color(), label=f"ensemble {e}")
-        for e, line in enumerate(fig.axes[0].get_lines()[:n_ens])
-    ]
-    fig.legend(handles=handles, loc="outside lower center", ncols=n_ens, fontsize=8)
     n_test = tree["posterior"].sizes["draw"]
+    if _n_ensembles(dt) is not None:
+        # one colour per independent ensemble (the chains of the stopping rule's R-hat)
+        n_ens = tree["posterior"].sizes["chain"]
+        handles = [
+            Line2D([], [], color=line.get_color(), label=f"ensemble {e}")
+            for e, line in enumerate(fig.axes[0].get_lines()[:n_ens])
+        ]
+        fig.legend(handles=handles, loc="outside lower center", ncols=n_ens, fontsize=8)
+        chains = (
+            f"{n_test} draws per ensemble (one walker in turn every {factor} kept draws, "
+            "the autocorrelation time)"
+        )
+    else:  # runs kept different numbers of ensembles: every walker is a chain
+        chains = f"every walker a chain, every {factor}th kept draw ({n_test} per walker)"
     title = (
-        "Rank plots: ECDF of each ensemble's ranks among all draws minus the uniform CDF; "
-        f"p: ArviZ's multi-chain uniformity test on {n_test} draws per ensemble (one walker "
-        f"in turn every {factor} kept draws, the autocorrelation time)"
+        "Rank plots: ECDF of each chain's ranks among all draws minus the uniform CDF; "
+        f"p: ArviZ's multi-chain uniformity test on {chains}"
     )
     label = data_label(dt)
     suptitle(fig, f"{label}\n{title}" if label else title, fontsize=9)
