@@ -17,8 +17,13 @@ runs on:
 * ``one walker in turn``: :func:`granbayes.figures._fit.rank_test_draws`, the rank plot's
   draws now.
 
-Usage: ``python benchmarks/rank_test_calibration.py [--replicates 30]`` (about 1.5 minutes
-on one core); writes ``benchmarks/results/rank_test_calibration.md``.
+With ``--ess N``: instead, whether the ESS the stopping rule requires (ArviZ's bulk ESS with
+every walker a chain) is right for means: over N replicates, the ESS against the one the
+spread of the replicates' posterior means implies (variance / variance of the means).
+
+Usage: ``python benchmarks/rank_test_calibration.py [--replicates 30] [--ess 60]`` (about
+1.5 and 2 minutes on one core); writes ``benchmarks/results/rank_test_calibration.md``
+(the ESS check: ``rank_test_ess.md``).
 """
 
 from __future__ import annotations
@@ -98,6 +103,44 @@ def fit_tree(draws: np.ndarray) -> xr.DataTree:
     return tree
 
 
+def ess_check(replicates: int, out: Path) -> None:
+    """The ESS of every walker as a chain against the spread of the means (module doc)."""
+    from arviz_stats.base import array_stats
+
+    means, ess = [], []
+    for child in np.random.SeedSequence([SEED, 1]).spawn(replicates):
+        c = sample(child)
+        walkers = c.transpose(0, 2, 1, 3).reshape(-1, c.shape[1], c.shape[3])
+        means.append(walkers.mean(axis=(0, 1)))
+        ess.append(
+            [
+                float(array_stats.ess(walkers[..., d], chain_axis=0, draw_axis=1, method="bulk"))
+                for d in range(N_DIM)
+            ]
+        )
+    implied = np.diag(COV) / np.var(np.array(means), axis=0, ddof=1)
+    reported = np.median(np.array(ess), axis=0)
+    lines = [
+        "# Is the stopping rule's ESS right for means on ensemble draws? (SYNTHETIC)",
+        "",
+        f"`benchmarks/rank_test_calibration.py --ess {replicates}` (seed [{SEED}, 1]): "
+        f"{replicates} replicates of the rank-test study's Gaussian, sampled the same way.",
+        "",
+        "| coordinate | ArviZ bulk ESS, walkers as chains (median) | ESS implied by the "
+        "spread of the means | ratio |",
+        "|---|---:|---:|---:|",
+        *(
+            f"| {d} | {reported[d]:.0f} | {implied[d]:.0f} | {reported[d] / implied[d]:.2f} |"
+            for d in range(N_DIM)
+        ),
+        "",
+        f"The implied ESS is a variance estimate from {replicates} values: relative SE about "
+        f"{math.sqrt(2 / (replicates - 1)):.0%}.",
+    ]
+    out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the study and write its table."""
     from granbayes.figures._fit import rank_test_draws
@@ -105,8 +148,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--replicates", type=int, default=30)
     parser.add_argument("--out", type=Path, default=HERE / "results" / "rank_test_calibration.md")
+    parser.add_argument("--ess", type=int, default=0, metavar="N", help="the ESS check instead")
     args = parser.parse_args(argv)
     logging.getLogger("emcee").setLevel(logging.ERROR)  # short-chain warnings of tau
+    if args.ess:
+        ess_check(args.ess, args.out.with_name("rank_test_ess.md"))
+        return 0
     schemes = ("concatenated", "every walker", "one walker in turn")
     p = {s: [] for s in schemes}
     steps = []
