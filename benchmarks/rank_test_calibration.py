@@ -14,8 +14,8 @@ runs on:
 * ``concatenated``: each ensemble's walkers concatenated step by step, every ``step``-th
   draw kept (the rank plot before this study);
 * ``every walker``: every walker's draws thinned by ``step``;
-* ``one walker in turn``: :func:`granbayes.figures._fit.rank_test_draws`, the rank plot's
-  draws now.
+* ``one walker in turn``: :func:`granbayes.stats._summaries.rank_test_draws`, the rank
+  plot's draws now.
 
 With ``--ess N``: instead, whether the ESS the stopping rule requires (ArviZ's bulk ESS with
 every walker a chain) is right for means: over N replicates, the ESS against the one the
@@ -143,7 +143,7 @@ def ess_check(replicates: int, out: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the study and write its table."""
-    from granbayes.figures._fit import rank_test_draws
+    from granbayes.stats._summaries import rank_test_draws
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--replicates", type=int, default=30)

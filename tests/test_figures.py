@@ -201,7 +201,7 @@ def test_a_predictive_check_of_one_volume_fraction_draws_its_bands():
 
 
 def test_the_rank_test_takes_one_walker_in_turn_every_step_of_each_ensemble():
-    from granbayes.figures._fit import rank_test_draws
+    from granbayes.stats._summaries import rank_test_draws
 
     out = rank_test_draws(_fit(SAME), ["k"], step=3)["k"]
     draws = np.arange(0, N_DRAW, 3)

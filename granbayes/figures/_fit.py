@@ -22,7 +22,7 @@ from ..commands import COMMAND_NAMES
 from ..stats import CI_PROB, eti_probs, run_diagnostics
 from ..stats._loo import _ignore_pareto_k_warning, _pit_tree
 from ..stats._sbc import _sbc_dataset
-from ..stats._summaries import _n_ensembles
+from ..stats._summaries import _n_ensembles, rank_test_draws
 from ._analyses import panel_grid
 from ._style import COLORS, data_label, param_label, suptitle, value_with_errors
 
@@ -291,62 +291,14 @@ def _coordinate_text(value: object) -> str:
     return f"{value:g}" if isinstance(value, (int, float, np.number)) else str(value)
 
 
-def rank_test_draws(dt: xr.DataTree, var_names: Sequence[str], step: int) -> xr.Dataset:
-    """Draws of a fit for a rank test across ensembles: one walker in turn every ``step``.
-
-    Per independent ensemble, kept draw ``k * step`` of walker ``k mod walkers``: the
-    multi-chain rank test assumes independent draws, and an ensemble's walkers are not
-    independent of each other even at one step (each proposal is built from the others'
-    positions), nor along a walker within its autocorrelation time. Measured on a Gaussian
-    target sampled like a fit (``benchmarks/rank_test_calibration.py``, 90 null
-    p-values, ``step`` the draws over the smallest ESS as the rank plot takes it): every
-    walker's draws thinned by ``step`` reject at alpha = 0.01 in 4 of 90, at 0.05 in 17;
-    one walker in turn in 0 and 1 of 90 (at 0.2 in 11: conservative, for 12 draws per
-    ensemble). Where the ensembles cannot be told apart
-    (:func:`granbayes.stats.by_ensemble`), every walker is a chain, thinned by ``step``.
-
-    Parameters
-    ----------
-    dt : xarray.DataTree
-        A fit (chains: walkers, ensemble by ensemble).
-    var_names : sequence of str
-        Parameters to keep.
-    step : int
-        Kept draws between two draws taken (>= 1): the autocorrelation time in kept draws.
-
-    Returns
-    -------
-    xarray.Dataset
-        Dimensions ``chain`` (ensembles), ``draw``, then the variables' own.
-    """
-    post = dt.posterior.to_dataset()[list(var_names)]
-    step = max(1, int(step))
-    n_ens = _n_ensembles(dt)
-    if n_ens is None:
-        return post.isel(draw=slice(None, None, step))
-    walkers = post.sizes["chain"] // n_ens
-    draws = np.arange(0, post.sizes["draw"], step)
-    chains = np.arange(n_ens)[:, None] * walkers + np.arange(len(draws))[None, :] % walkers
-    picked = {
-        name: da.transpose("chain", "draw", ...).values[chains, draws[None, :]]
-        for name, da in post.data_vars.items()
-    }
-    return xr.Dataset(
-        {
-            name: (("chain", "draw", *post[name].dims[2:]), values)
-            for name, values in picked.items()
-        },
-        coords={d: post.coords[d] for d in post.coords if d not in ("chain", "draw")},
-    ).assign_coords(chain=np.arange(n_ens), draw=np.arange(len(draws)))
-
-
 def plot_rank(dt: xr.DataTree, var_names: Sequence[str]) -> Figure:
     """Rank plot (``arviz_plots.plot_rank``), one line per independent ensemble.
 
     The multi-chain uniformity test behind the p-values and the highlighted points assumes
     independent draws (Säilynoja et al. 2022), so the test sees one walker in turn per
-    autocorrelation time of each ensemble (:func:`rank_test_draws`): few draws, so a test
-    of little power, but one whose p-values mean what they say. The autocorrelation time
+    autocorrelation time of each ensemble
+    (:func:`granbayes.stats._summaries.rank_test_draws`): few draws, so a test of little
+    power, but one whose p-values mean what they say. The autocorrelation time
     comes from the fit's own ESS (the smallest over runs, the fit's draws over it;
     :func:`granbayes.stats.run_diagnostics`). Thinning an ensemble's walkers concatenated
     into one chain by that factor, as before, rejected uniformity at alpha = 0.01 in 21 of

@@ -33,6 +33,9 @@ _ROBOT_LABELS: dict[str, tuple[str, str]] = {
 }
 
 
+#: Labels and units of every parameter that is not a force term's.
+_OWN_LABELS = _NOISE_LABELS | _ROBOT_LABELS
+
 #: Colours of lines and bands (Okabe-Ito, colour-blind safe).
 COLORS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00")
 
@@ -88,8 +91,8 @@ def param_unit(name: str) -> str | None:
     -------
     str or None
     """
-    if name in _NOISE_LABELS or name in _ROBOT_LABELS:
-        return (_NOISE_LABELS | _ROBOT_LABELS)[name][1]
+    if name in _OWN_LABELS:
+        return _OWN_LABELS[name][1]
     try:
         return parameter(name).unit
     except KeyError:
@@ -109,8 +112,8 @@ def param_label(name: str) -> str:
     -------
     str
     """
-    if name in _NOISE_LABELS or name in _ROBOT_LABELS:
-        return (_NOISE_LABELS | _ROBOT_LABELS)[name][0]
+    if name in _OWN_LABELS:
+        return _OWN_LABELS[name][0]
     try:
         return parameter(name).label
     except KeyError:
