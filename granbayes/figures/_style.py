@@ -143,18 +143,9 @@ def value_with_errors(value: float, minus: float, plus: float) -> str:
         return f"${value:.3g}^{{+{plus:.3g}}}_{{-{minus:.3g}}}$"
     magnitude = int(np.floor(np.log10(smaller)))
     decimals = max(0, 1 - magnitude)
-    step = 10.0 ** (magnitude - 1)  # the last digit kept when decimals = 0: 1, 10, 100...
-    if decimals == 0:
-
-        def text(x: float) -> str:
-            return f"{round(x / step) * step:.0f}"
-
-    else:
-
-        def text(x: float) -> str:
-            return f"{x:.{decimals}f}"
-
-    return f"${text(value)}^{{+{text(plus)}}}_{{-{text(minus)}}}$"
+    step = 10.0 ** (magnitude - 1)  # the last digit kept: ..., 0.1, 1, 10, 100, ...
+    text = [f"{round(x / step) * step:.{decimals}f}" for x in (value, plus, minus)]
+    return f"${text[0]}^{{+{text[1]}}}_{{-{text[2]}}}$"
 
 
 def wrap_title(text: str, width_in: float, fontsize: float) -> str:
