@@ -41,14 +41,16 @@ def the_rest() -> None:
     gb.simulate_frames("single", 0.612, law, np.linspace(0.0, 0.2, 20))
     n, grid, shifts, frames_, jumps = 2, 5, 3, 4, 2
     _quadratic_sums(
-        np.zeros((n, grid)),
-        np.zeros((n, grid)),
+        np.zeros((n, grid, 4)),
+        np.zeros(1, dtype=np.int64),
         np.zeros((shifts, frames_), dtype=np.int64),
-        np.zeros(frames_),
-        np.zeros((n, frames_)),
-        np.ones((n, frames_)),
+        np.zeros((1, frames_)),
+        np.full(frames_, np.inf),
+        np.ones((n, jumps)),
+        np.ones((n, 1, jumps)),
         np.array([0, 2], dtype=np.int64),
         np.zeros((3, n, shifts, jumps)),
+        np.zeros((n, jumps)),
     )
 
 
