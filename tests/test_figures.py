@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import xarray as xr
+from matplotlib.colors import to_rgb
 
 from granbayes import figures
 from granbayes.stats import by_ensemble
@@ -57,15 +58,28 @@ def test_trace_draws_every_walker_and_each_ensembles_median(runs, groups):
     axes = [ax for ax in fig.axes if ax.get_visible()]
     assert [ax.get_title() for ax in axes] == [f"phi = {p:g}" for p in PHIS]
     for p, ax in enumerate(axes):
-        thin = [line for line in ax.lines if line.get_linewidth() < 1.0]
-        thick = [line for line in ax.lines if line.get_linewidth() >= 1.0]
+        # the walkers: one thin line collection per ensemble, in its median's colour
+        thin = [seg for c in ax.collections for seg in c.get_segments()]
         assert len(thin) == N_ENS * WALKERS
-        assert len(thick) == groups
+        assert all(c.get_linewidth()[0] < 1.0 for c in ax.collections)
+        np.testing.assert_array_equal(
+            [seg[:, 1] for seg in thin], _fit(runs).posterior["k"].values[:, :, p]
+        )
+        thick = [line for line in ax.lines if line.get_linewidth() >= 1.0]
+        assert len(thick) == groups == len(ax.collections)
         per_group = N_ENS * WALKERS // groups
         for g, line in enumerate(thick):
             chains = slice(g * per_group, (g + 1) * per_group)
             values = _fit(runs).posterior["k"].values[chains, :, p]
             np.testing.assert_array_equal(line.get_ydata(), np.median(values, axis=0))
+            np.testing.assert_array_equal(
+                ax.collections[g].get_edgecolor()[0][:3], to_rgb(line.get_color())
+            )
+        # the walkers' lines are inside the axes' limits (a collection does not widen them
+        # unless added with its limits)
+        low, high = ax.get_ylim()
+        assert low <= _fit(runs).posterior["k"].values[:, :, p].min()
+        assert high >= _fit(runs).posterior["k"].values[:, :, p].max()
     assert "kept draw" in [ax.get_xlabel() for ax in axes]
     assert fig.get_suptitle().startswith("SYNTHETIC data (tests/test_figures.py)")
 

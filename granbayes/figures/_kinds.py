@@ -20,6 +20,13 @@ def _draws(var: xr.DataArray, dim: str) -> np.ndarray:
     return var.transpose(*other, dim).values.reshape(-1, var.sizes[dim])
 
 
+def _quantiles(values: np.ndarray, q, axis: int = 0) -> np.ndarray:
+    """Quantiles ignoring NaN (failed simulations), by the cheaper rule where there are none."""
+    if np.isnan(values).any():
+        return np.nanquantile(values, q, axis=axis)
+    return np.quantile(values, q, axis=axis)
+
+
 def plot_tracked_jumps(dt: xr.DataTree, ci_prob: float = CI_PROB, max_jumps: int = 6) -> Figure:
     """Measured trajectories over posterior predictive bands, with residuals against time.
 
@@ -65,16 +72,18 @@ def plot_tracked_jumps(dt: xr.DataTree, ci_prob: float = CI_PROB, max_jumps: int
     )
     t_all = obs["t_s"].values
     phase = obs["frame_phase"].values.astype(str)
+    # every draw of every frame, read once (not once per jump drawn)
+    reps = {c: _draws(pp[c], "frame") for c in positions}
+    sims = {c: _draws(pp[c.replace("_mm", "_sim_mm")], "frame") for c in positions}
     for col, j in enumerate(chosen):
         sel = np.flatnonzero(unit == j)
         t = 1e3 * t_all[sel]
         for p, position in enumerate(positions):
             ax, rax = axes[2 * p, col], axes[2 * p + 1, col]
             y = obs[position].values[sel]
-            rep = _draws(pp[position], "frame")[:, sel]
-            sim = _draws(pp[position.replace("_mm", "_sim_mm")], "frame")[:, sel]
-            lo_r, _, hi_r = np.nanquantile(rep, q, axis=0)
-            lo_s, med, hi_s = np.nanquantile(sim, q, axis=0)
+            rep = reps[position][:, sel]
+            lo_r, _, hi_r = _quantiles(rep, q)
+            lo_s, med, hi_s = _quantiles(sims[position][:, sel], q)
             for name, shade in _PHASE_SHADES.items():
                 inside = np.flatnonzero(phase[sel] == name)
                 if len(inside):
@@ -84,7 +93,7 @@ def plot_tracked_jumps(dt: xr.DataTree, ci_prob: float = CI_PROB, max_jumps: int
             ax.fill_between(t, lo_s, hi_s, color=COLORS[0], alpha=0.45, lw=0, label="simulation")
             ax.plot(t, med, color=COLORS[0], lw=1.0)
             ax.plot(t, y, ".", ms=2.0, color="k", label="measured")
-            res_lo, res_hi = np.nanquantile(rep - med, [q[0], q[2]], axis=0)
+            res_lo, res_hi = _quantiles(rep - med, [q[0], q[2]])
             rax.fill_between(t, res_lo, res_hi, color=COLORS[0], alpha=0.18, lw=0)
             rax.axhline(0.0, color="0.4", lw=0.6)
             rax.plot(t, y - med, ".", ms=2.0, color="k")
@@ -151,8 +160,8 @@ def plot_intrusions(dt: xr.DataTree, ci_prob: float = CI_PROB) -> Figure:
                 continue
             order = sel[np.argsort(depth[sel], kind="stable")]
             d = depth[order]
-            lo_r, _, hi_r = np.nanquantile(rep[:, order], q, axis=0)
-            lo_s, med, hi_s = np.nanquantile(sim[:, order], q, axis=0)
+            lo_r, _, hi_r = _quantiles(rep[:, order], q)
+            lo_s, med, hi_s = _quantiles(sim[:, order], q)
             ax.fill_between(d, lo_r, hi_r, color=color, alpha=0.15, lw=0)
             ax.fill_between(d, lo_s, hi_s, color=color, alpha=0.4, lw=0)
             ax.plot(d, med, color=color, lw=1.0, label=f"{v:g} mm/s")
