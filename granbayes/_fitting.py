@@ -949,7 +949,8 @@ def _laplace_starts(
         if lower and notes is not None:
             notes.setdefault(i, []).append(
                 START_NOTE + f"ensemble {e}: {len(lower)} of {len(ends)} climbs ended more than "
-                f"{gap:.1f} nats below its best mode (log-probability {top:.1f}; the others "
+                f"{gap:.1f} nats below its best mode (log-probability of the best {top:.1f}; "
+                + "of the lower "
                 + ", ".join(f"{value:.1f}" for value in lower)
                 + "): the posterior has separated modes; the best is kept"
             )

@@ -5,6 +5,7 @@ The data are SYNTHETIC, from the independent scipy oracle (``granbayes.testing``
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -186,6 +187,10 @@ def test_each_ensemble_starts_from_the_best_of_its_climbs(
     np.testing.assert_allclose(centre, expected, atol=0.15)  # 64 walkers of sd <= 0.3
     if climbs == 3:
         assert "2 of 3 climbs ended more than" in notes[0][0]
+        # the note says which value is the best mode's and which are the lower climbs'
+        best = float(re.search(r"of the best (-?[\d.]+);", notes[0][0]).group(1))
+        lower = re.search(r"of the lower ([-\d., ]+)\)", notes[0][0]).group(1).split(", ")
+        assert len(lower) == 2 and all(float(v) < best - 5.0 for v in lower)
     else:
         assert not notes
 
