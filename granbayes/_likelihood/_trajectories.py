@@ -159,49 +159,46 @@ def _quadratic_sums(
             # sums are independent chains of additions, which the processor overlaps
             for k0 in range(0, n_shift, 2):
                 k1 = min(k0 + 1, n_shift - 1)
-                t0aa = t0ab = t0bb = 0.0
-                t1aa = t1ab = t1bb = 0.0
+                total0 = total1 = (0.0, 0.0, 0.0)
                 for c in range(n_col):
                     col = cols[c]
-                    aa0 = ab0 = bb0 = pr0 = pv0 = 0.0
-                    aa1 = ab1 = bb1 = pr1 = pv1 = 0.0
+                    run0 = run1 = (0.0, 0.0, 0.0, 0.0, 0.0)
                     for i in range(lo, hi):
                         q = rho[i - lo]
                         f = inv[i - lo]
-                        yi = y[c, i]
                         g0 = grid_index[k0, i]
-                        r0 = yi - frames[w, g0, col]
-                        v0 = frames[w, g0, 2 + col]
-                        a0 = (r0 - q * pr0) * f
-                        b0 = (v0 - q * pv0) * f
-                        aa0 += a0 * a0
-                        ab0 += a0 * b0
-                        bb0 += b0 * b0
-                        pr0 = r0
-                        pv0 = v0
                         g1 = grid_index[k1, i]
-                        r1 = yi - frames[w, g1, col]
-                        v1 = frames[w, g1, 2 + col]
-                        a1 = (r1 - q * pr1) * f
-                        b1 = (v1 - q * pv1) * f
-                        aa1 += a1 * a1
-                        ab1 += a1 * b1
-                        bb1 += b1 * b1
-                        pr1 = r1
-                        pv1 = v1
+                        run0 = _add_frame(
+                            run0, y[c, i] - frames[w, g0, col], frames[w, g0, 2 + col], q, f
+                        )
+                        run1 = _add_frame(
+                            run1, y[c, i] - frames[w, g1, col], frames[w, g1, 2 + col], q, f
+                        )
                     isd2 = 1.0 / (sd[w, c, j] * sd[w, c, j])
-                    t0aa += aa0 * isd2
-                    t0ab += ab0 * isd2
-                    t0bb += bb0 * isd2
-                    t1aa += aa1 * isd2
-                    t1ab += ab1 * isd2
-                    t1bb += bb1 * isd2
-                sums[0, w, k0, j] = t0aa
-                sums[1, w, k0, j] = t0ab
-                sums[2, w, k0, j] = t0bb
-                sums[0, w, k1, j] = t1aa
-                sums[1, w, k1, j] = t1ab
-                sums[2, w, k1, j] = t1bb
+                    total0 = _add_scaled(total0, run0, isd2)
+                    total1 = _add_scaled(total1, run1, isd2)
+                for m in range(3):
+                    sums[m, w, k0, j] = total0[m]
+                    sums[m, w, k1, j] = total1[m]
+
+
+@numba.njit(inline="always", fastmath=_FAST)
+def _add_frame(run, r, v, q, f):  # pragma: no cover
+    """One frame into a shift's running sums ``(a a, a b, b b, r_prev, v_prev)``.
+
+    ``r`` and ``v`` are the frame's residual [mm] and velocity [mm/s], ``q`` its
+    correlation with the previous frame and ``f = 1 / sqrt(1 - q^2)``.
+    """
+    saa, sab, sbb, prev_r, prev_v = run
+    a = (r - q * prev_r) * f
+    b = (v - q * prev_v) * f
+    return saa + a * a, sab + a * b, sbb + b * b, r, v
+
+
+@numba.njit(inline="always", fastmath=_FAST)
+def _add_scaled(total, run, scale):  # pragma: no cover
+    """A column's sums ``run[:3]``, times ``scale = 1 / sd^2``, added to ``total``."""
+    return total[0] + run[0] * scale, total[1] + run[1] * scale, total[2] + run[2] * scale
 
 
 class TrajectoryBlock(Block):
