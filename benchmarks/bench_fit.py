@@ -5,9 +5,9 @@ multi-ensemble rule, in <= 15 s wall for the whole process on the 2-core machine
 script times it in-process; the whole process is timed from outside, README). Runs the
 fit as the CLI does (HDF5 checkpoint, report with figures) under cProfile and reports
 where the time goes.
-Writes ``benchmarks/results/fit.json`` and ``fit.md``.
+Writes ``benchmarks/results/fit.json`` and ``fit.md`` (``--name``: other names).
 
-Usage: ``python benchmarks/bench_fit.py [--seed N] [--no-report]``
+Usage: ``python benchmarks/bench_fit.py [--seed N] [--no-report] [--name NAME]``
 """
 
 from __future__ import annotations
@@ -58,6 +58,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-report", action="store_true", help="skip figures and tables")
+    parser.add_argument(
+        "--name",
+        default="fit",
+        help="results file names: results/NAME.json and NAME.md (default fit; e.g. one per "
+        "machine kind)",
+    )
     args = parser.parse_args()
     simulate("single", 0.612, {"k": 3000.0})  # compile / load the cache outside the timing
     experiment = load_experiment(DATA)
@@ -107,7 +113,7 @@ def main() -> None:
         "seed": args.seed,
     }
     (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "fit.json").write_text(json.dumps(report, indent=2, default=float))
+    (HERE / "results" / f"{args.name}.json").write_text(json.dumps(report, indent=2, default=float))
     lines: list[str] = []
     emit = lines.append
     emit(f"### `granbayes fit` on the synthetic reference data (depth + drag), {report['date']}")
@@ -135,7 +141,7 @@ def main() -> None:
     emit("")
     emit(f"machine: {report['machine']}")
     text = "\n".join(lines) + "\n"
-    (HERE / "results" / "fit.md").write_text(text)
+    (HERE / "results" / f"{args.name}.md").write_text(text)
     print(text, end="")
 
 
