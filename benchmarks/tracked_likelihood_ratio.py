@@ -107,13 +107,12 @@ class Setting:
         t = self.block.table.copy()
         half_window = self.block.offset_windows_s()
         rho, sd = noise["frame_rho"], noise["frame_sd_mm"]
-        for j, times in zip(self.jumps, self.times, strict=True):
+        for j, times, program in zip(self.jumps, self.times, self.block._programs, strict=True):
             dt = float(np.median(np.diff(times)))
             while True:  # inside the likelihood's offset window (a 3.4-sigma draw otherwise)
                 offset = noise["clock_sd_frames"] * dt * rng.standard_normal()
                 if abs(offset) < half_window[j]:
                     break
-            program = self.block._programs[self.jumps.index(j)]
             oracle = simulate_trajectory_scipy(
                 program, self.phi, self.law, times + offset, self.experiment
             )

@@ -277,9 +277,7 @@ class TrajectoryBlock(Block):
         self._y = {c: t[c].to_numpy(float)[order] for c in self.positions}
         # the measured columns as the compiled sums take them
         self._columns = np.array([POSITIONS.index(c) for c in self.positions], dtype=np.int64)
-        self._y_columns = np.stack([self._y[c] for c in self.positions]).reshape(
-            len(self.positions), len(order)
-        )
+        self._y_columns = np.stack([self._y[c] for c in self.positions])
         # spacing of each frame from the previous one of its jump (inf: the first)
         gap = np.diff(times, prepend=np.nan)
         gap[self._starts] = np.inf

@@ -20,11 +20,11 @@ def _draws(var: xr.DataArray, dim: str) -> np.ndarray:
     return var.transpose(*other, dim).values.reshape(-1, var.sizes[dim])
 
 
-def _quantiles(values: np.ndarray, q, axis: int = 0) -> np.ndarray:
-    """Quantiles ignoring NaN (failed simulations), by the cheaper rule where there are none."""
+def _quantiles(values: np.ndarray, q) -> np.ndarray:
+    """Quantiles over the draws (axis 0), ignoring NaN (failed simulations) where any."""
     if np.isnan(values).any():
-        return np.nanquantile(values, q, axis=axis)
-    return np.quantile(values, q, axis=axis)
+        return np.nanquantile(values, q, axis=0)
+    return np.quantile(values, q, axis=0)
 
 
 def plot_tracked_jumps(dt: xr.DataTree, ci_prob: float = CI_PROB, max_jumps: int = 6) -> Figure:
