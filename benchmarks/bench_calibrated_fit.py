@@ -6,9 +6,10 @@ exp(25 (phi - phi_c))`` N/m, scatter 1 mm, from a robot whose spring is 4% stiff
 3% heavier and stroke 3% shorter than nominal (1.33, 1.5 and 1.5 calibration sds;
 ``[robot.uncertainty]`` k_spring 172.8 N/m, m_motor 0.02 kg, amplitude_mm 0.4 mm). For
 each seed of the scatter, the same data are fitted (terms ``depth``, ``per_phi``, default
-sampler) taking the robot as exact (``nominal``) and sampling the three parameters
-(``sample``), pair by pair in one process, so the ratio of wall times is measured under the
-same load. Records per fit the wall time, the steps of every volume fraction's run,
+sampler) taking the robot as exact (``nominal``), sampling the three parameters with a
+copy per volume fraction's run (``sample``) and with one robot for every volume fraction
+(``pool``: one run of them all), in turn in one process, so the ratios of wall times are
+measured under the same load. Records per fit the wall time, the steps of every run,
 convergence, and ``k``'s posterior against the truth (z = (mean - truth) / sd) at every
 volume fraction; and the posterior of the robot parameters against their calibration.
 Writes ``benchmarks/results/calibrated_fit.json`` and ``.md``.
@@ -27,6 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 import pandas as pd
 
@@ -40,6 +42,7 @@ HERE = Path(__file__).resolve().parent
 PHIS = (0.592, 0.602, 0.612, 0.622, 0.632)
 SD = {"k_spring": 172.8, "m_motor": 0.02, "amplitude_mm": 0.4}
 TRUE = {"k_spring": 5760.0 * 1.04, "m_motor": 1.03, "amplitude_mm": 19.4}
+MODES = ("nominal", "sample", "pool")
 
 
 def true_k(phi: float) -> float:
@@ -99,10 +102,13 @@ def main(argv: list[str] | None = None) -> int:
             folder = write_lab_experiment(Path(tmp) / "lab", lab)
             exp = gb.load_experiment(folder)
             data = gb.load_measurements(folder, exp)
-            for calibration in ("nominal", "sample"):
+            for calibration in MODES:
                 rows.append(one_fit(exp, data, calibration, seed))
                 print(json.dumps(rows[-1]), flush=True)
-    ratios = [s["wall_s"] / n["wall_s"] for n, s in zip(rows[::2], rows[1::2], strict=True)]
+    wall = {m: [r["wall_s"] for r in rows if r["calibration"] == m] for m in MODES}
+    ratios = [s / n for n, s in zip(wall["nominal"], wall["sample"], strict=True)]
+    pool_ratios = [p / n for n, p in zip(wall["nominal"], wall["pool"], strict=True)]
+    pool_over_sample = [p / s for s, p in zip(wall["sample"], wall["pool"], strict=True)]
     result = {
         "date": datetime.date.today().isoformat(),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores",
@@ -112,6 +118,11 @@ def main(argv: list[str] | None = None) -> int:
         "fits": rows,
         "median_ratio_sample_over_nominal": float(np.median(ratios)),
         "ratios": ratios,
+        "median_ratio_pool_over_nominal": float(np.median(pool_ratios)),
+        "pool_ratios": pool_ratios,
+        "median_ratio_pool_over_sample": float(np.median(pool_over_sample)),
+        "pool_over_sample": pool_over_sample,
+        "numba_threads": numba.get_num_threads(),
     }
     (HERE / "results").mkdir(exist_ok=True)
     (HERE / "results" / "calibrated_fit.json").write_text(json.dumps(result, indent=1) + "\n")
@@ -120,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
             "seed": r["seed"],
             "robot": r["calibration"],
             "wall [s]": round(r["wall_s"], 1),
-            "steps per phi": " ".join(map(str, r["steps"])),
+            "steps per run": " ".join(map(str, r["steps"])),
             "converged": r["converged"],
             "z of k per phi": " ".join(f"{z:+.1f}" for z in r["k_z"]),
             "sigma_mm per phi (truth 1)": " ".join(f"{s:.2f}" for s in r["sigma_mm"]),
@@ -143,11 +154,17 @@ def main(argv: list[str] | None = None) -> int:
         "k(phi) = 3000 exp(25 (phi - 0.612)) N/m, scatter 1 mm, robot k_spring 5990 N/m, "
         "m_motor 1.03 kg, stroke 19.4 mm (nominal 5760, 1.0, 20.0; calibration sds 172.8, "
         "0.02, 0.4). Fits: terms depth, per_phi, default sampler; `sample` samples the "
-        "three robot parameters (each volume fraction's run its own copy).",
+        "three robot parameters (each volume fraction's run its own copy); `pool` samples "
+        "one robot for every volume fraction (one run of them all). numba threads: "
+        f"{result['numba_threads']}.",
         "",
-        f"Median wall-time ratio sample / nominal, paired: "
+        f"Median wall-time ratios, paired by seed: sample / nominal "
         f"{result['median_ratio_sample_over_nominal']:.2f} "
-        f"({', '.join(f'{r:.2f}' for r in ratios)}).",
+        f"({', '.join(f'{r:.2f}' for r in ratios)}); pool / nominal "
+        f"{result['median_ratio_pool_over_nominal']:.2f} "
+        f"({', '.join(f'{r:.2f}' for r in pool_ratios)}); pool / sample "
+        f"{result['median_ratio_pool_over_sample']:.2f} "
+        f"({', '.join(f'{r:.2f}' for r in pool_over_sample)}).",
         "",
         markdown_table(pd.DataFrame(table)),
     ]

@@ -539,8 +539,13 @@ def _add_inference_arguments(
     parser: argparse.ArgumentParser,
     max_steps: int,
     threads_help: str = "numba threads (default: all cores)",
+    pool: bool = True,
 ) -> None:
-    """Arguments shared by ``fit``, ``diagnose`` and ``sbc`` (same names everywhere)."""
+    """Arguments shared by ``fit``, ``diagnose`` and ``sbc`` (same names everywhere).
+
+    ``pool``: whether ``--calibration pool`` is offered (not by ``diagnose``, whose fits
+    are per volume fraction).
+    """
     parser.add_argument("data", metavar="DIR", type=Path, help="experiment folder")
     parser.add_argument(
         "--out",
@@ -576,12 +581,19 @@ def _add_inference_arguments(
         "posteriors such as those of tracked jumps)",
     )
     parser.add_argument("--threads", type=int, help=threads_help)
+    pooled = (
+        "; pool: one value for every volume fraction also in per_phi mode (one sampler run "
+        "of every volume fraction's law)"
+        if pool
+        else ""
+    )
     parser.add_argument(
         "--calibration",
-        choices=("sample", "nominal"),
+        choices=("sample", "pool", "nominal") if pool else ("sample", "nominal"),
         default="sample",
         help="robot parameters with an uncertainty in experiment.toml: sampled with their "
-        "calibration as prior (default), or taken at their nominal values as exact",
+        "calibration as prior (default; per_phi mode: each volume fraction its own copy)"
+        f"{pooled}; nominal: taken at their nominal values as exact",
     )
     parser.add_argument(
         "--quiet", action="store_true", help="no progress bars or progress messages"
@@ -824,7 +836,7 @@ class ProgressBars:
 
 
 def _add_diagnose_arguments(parser: argparse.ArgumentParser) -> None:
-    _add_inference_arguments(parser, max_steps=10_000)
+    _add_inference_arguments(parser, max_steps=10_000, pool=False)
     _add_kinds_argument(parser)
     parser.add_argument(
         "--baseline", default="depth", help="comma-separated terms of the baseline law"

@@ -12,16 +12,29 @@ with ``calibration="sample"`` (default) each uncertain robot parameter (the robo
 the stroke ``amplitude_mm``) is one more coordinate of every sampler run, shared by its
 commands and kinds of measurement, with Normal(nominal, sd) as prior. How it is sampled,
 and why: in ``quadratic`` mode the run already holds every volume fraction, so the robot is
-shared by all of them. In ``per_phi`` mode each volume fraction's run integrates over its
-own copy, the conservative marginal (a volume fraction's law never borrows what the others
-say about the spring). One ensemble over every volume fraction's coordinates plus the
-robot's (~15-20 dimensions) would pool them, but every walker would simulate every jump
-and the ensembles need about ``4 x ndim`` walkers and longer chains (the quadratic-mode
-fits are built that way and are the slowest this package runs); blocks per volume
-fraction given the shared parameters (Metropolis-within-Gibbs over ensembles) would pool
-them at about the per-run cost and are the next step. The per-run copies' cost against the
-fixed-robot fit is measured in ``benchmarks/results/calibrated_fit.md`` (walkers ``4 x
-ndim`` and about twice the steps).
+shared by all of them. In ``per_phi`` mode, ``calibration="sample"`` gives each volume
+fraction's run its own copy, the conservative marginal (a volume fraction's law never
+borrows what the others say about the spring); ``calibration="pool"`` samples one robot
+for all of them: one run whose coordinates are every volume fraction's law and scatter
+plus the robot's (:class:`~granbayes._likelihood.JumpModel`'s ``"per_phi_joint"``,
+13 dimensions for the depth law at 5 volume fractions and 3 robot parameters), one
+emcee ensemble per independent chain with ``4 x ndim`` walkers, started from the Laplace
+approximation like every run. Why one ensemble rather than blocks per volume fraction
+given the robot (Metropolis-within-Gibbs): the robot and each volume fraction's stiffness
+trade against each other (in the pooled posterior of the issue's lab, seed 0, log k at
+every volume fraction correlates with the spring by 0.78-0.83, the motor's mass by
+0.85-0.89 and the stroke by -0.82 to -0.91), so a Gibbs sweep would move along that ridge
+in small steps, while the affine-invariant moves of one ensemble follow it. Its cost
+against the copies and the fixed robot is measured in
+``benchmarks/results/calibrated_fit.md``; half of it is the start's climbs in 13
+dimensions, every climb simulating every jump. A start made of the volume fractions' own
+starts (their Laplace approximations combined, then L-BFGS-B) was tried and not kept: the
+copies' starts cost 15 s, and L-BFGS-B on the simulator's slightly rough log-posterior
+another 14 s to stop 4-5 nats below the mode the usual climbs reach (33 s against 35 s,
+and the seed-0 fit needed 400 steps instead of 150). The robot,
+pinned by every volume fraction's jumps, no longer drags the stiffness towards the
+nominal robot (``README``, "A robot known only to its calibration"). ``diagnose`` keeps
+the copies: its fallbacks refit and cross-validate volume fractions on their own.
 
 A bed's volume fraction known only to its measurement (``[bed] phi_sd``): with
 ``bed_phi="integrate"`` (default) and ``phi_mode="quadratic"``, each jump's and each
@@ -142,13 +155,16 @@ class FitSettings:
     n_prior_draws : int
         Prior draws (and their simulated heights) stored in the DataTree's ``prior`` and
         ``prior_predictive`` groups (0: none).
-    calibration : {"sample", "nominal"}
+    calibration : {"sample", "pool", "nominal"}
         ``"sample"``: the robot parameters ``experiment.toml`` gives an uncertainty
         (``[robot.uncertainty]``; the robot's own and ``amplitude_mm``) are parameters of
         the fit with their calibration as prior, one value per sampler run (``quadratic``:
         one for all volume fractions; ``per_phi``: each volume fraction integrates over its
-        own, see the module docstring); ``"nominal"``: take the nominal values as exact
-        (the fit warns). Without uncertainties both are the same fit, bit for bit.
+        own, see the module docstring); ``"pool"``: one value for every volume fraction
+        also in ``per_phi`` mode (one sampler run over every volume fraction's law; the
+        same as ``"sample"`` in ``quadratic`` mode); ``"nominal"``: take the nominal values
+        as exact (the fit warns). Without uncertainties the three are the same fit, bit for
+        bit.
     bed_phi : {"integrate", "measured"}
         ``"integrate"``: with ``[bed] phi_sd > 0`` and ``phi_mode="quadratic"``, each
         jump's and each intrusion test's bed has a latent volume fraction
@@ -173,7 +189,7 @@ class FitSettings:
     options: SolverSettings = field(default_factory=SolverSettings)
     n_threads: int | None = None
     n_prior_draws: int = 200
-    calibration: Literal["sample", "nominal"] = "sample"
+    calibration: Literal["sample", "pool", "nominal"] = "sample"
     bed_phi: Literal["integrate", "measured"] = "integrate"
     phi_nodes: int = 9
 
@@ -182,8 +198,10 @@ class FitSettings:
         object.__setattr__(self, "terms", terms_of(self.terms))
         if self.phi_mode not in ("per_phi", "quadratic"):
             raise ValueError(f"phi_mode must be 'per_phi' or 'quadratic', got {self.phi_mode!r}")
-        if self.calibration not in ("sample", "nominal"):
-            raise ValueError(f"calibration must be 'sample' or 'nominal', got {self.calibration!r}")
+        if self.calibration not in ("sample", "pool", "nominal"):
+            raise ValueError(
+                f"calibration must be 'sample', 'pool' or 'nominal', got {self.calibration!r}"
+            )
         if self.bed_phi not in ("integrate", "measured"):
             raise ValueError(f"bed_phi must be 'integrate' or 'measured', got {self.bed_phi!r}")
         BedPhi(0.0, self.phi_nodes)  # checks the node count
@@ -1189,6 +1207,21 @@ def _make_model(
     )
 
 
+def pooled(experiment: Experiment, settings: FitSettings) -> bool:
+    """Whether a ``per_phi`` fit samples every volume fraction in one run.
+
+    With ``calibration="pool"`` and a robot parameter with an uncertainty: the robot is
+    then one value for every volume fraction (the module docstring says how it is
+    sampled). Without an uncertainty there is nothing to pool and the runs stay per volume
+    fraction (the same fit as ``"sample"``, bit for bit).
+    """
+    return (
+        settings.phi_mode == "per_phi"
+        and settings.calibration == "pool"
+        and bool(_calibrated(experiment, settings))
+    )
+
+
 def _calibrated(experiment: Experiment, settings: FitSettings) -> dict[str, Prior]:
     """Priors of the robot parameters the fit samples (their calibration), by name."""
     if settings.calibration == "nominal":
@@ -1227,6 +1260,9 @@ def part_models(
     data = _as_measurements(data)
     if settings.phi_mode == "quadratic":
         model = _make_model(data, experiment, settings, priors, "quadratic")
+        return [("all", model, np.arange(data.n_units))]
+    if pooled(experiment, settings) and len(data.phis) > 1:
+        model = _make_model(data, experiment, settings, priors, "per_phi_joint")
         return [("all", model, np.arange(data.n_units))]
     return [
         (
@@ -1299,7 +1335,7 @@ def fit(
     specs = part_models(experiment, data, settings, priors)
     warms = [
         _warm_positions(model, warm_start, float(model.phis[0]))
-        if warm_start is not None and settings.phi_mode == "per_phi"
+        if warm_start is not None and model.phi_mode == "per_phi"
         else None
         for _, model, _ in specs
     ]
@@ -1467,6 +1503,11 @@ def screen_many(
         raise ValueError("screening needs phi_mode='per_phi'")
     priors = dict(priors if priors is not None else default_priors())
     table = _as_measurements(table)
+    if any(pooled(experiment, c) for c in configs):
+        raise ValueError(
+            "screening fits each volume fraction on its own: calibration='pool' samples "
+            "them in one run (use 'sample' or 'nominal')"
+        )
     names = parent.attrs.get("parameters", "[]")  # JSON text (netCDF attributes)
     parent_names = set(json.loads(names) if isinstance(names, str) else names)
     problems, owner, failed = [], [], set()
@@ -2172,8 +2213,13 @@ def compare_commands(
             DeprecationWarning,
             stacklevel=2,
         )
-    if shared.settings.phi_mode != "per_phi":
-        raise ValueError("compare_commands needs a per_phi fit")
+    if shared.settings.phi_mode != "per_phi" or any(
+        len(part.model.phis) != 1 for part in shared.parts
+    ):
+        raise ValueError(
+            "compare_commands needs a per_phi fit with one run per volume fraction (not "
+            "calibration='pool')"
+        )
     priors = dict(priors if priors is not None else default_priors())
     table = table.reset_index(drop=True)
     table = table.assign(jump=np.arange(len(table)))

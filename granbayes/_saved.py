@@ -290,7 +290,7 @@ class SavedFit:
         -------
         list of str
             Run labels: the one run of a ``quadratic`` fit; for a ``per_phi`` fit, the run
-            of each fitted volume fraction.
+            of each fitted volume fraction (the one run of them all with a pooled robot).
 
         Raises
         ------
@@ -311,7 +311,8 @@ class SavedFit:
                     f"fractions phi = {', '.join(f'{f:g}' for f in fitted)}; predict at one of "
                     "them, or fit with phi_mode='quadratic' to predict between them"
                 )
-            out.append(labels[i])
+            # one run per fitted volume fraction, or one for all (calibration="pool")
+            out.append(labels[i] if len(labels) == len(fitted) else labels[0])
         return out
 
     def draws(self, label: str) -> np.ndarray:

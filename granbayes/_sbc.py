@@ -115,7 +115,10 @@ def draw_replicate(
     The robot parameters ``experiment.toml`` gives an uncertainty are drawn from their
     calibration whatever ``config.calibration`` says (a lab's robot is what it is; the
     setting is how the fit treats it), so SBC with ``calibration="nominal"`` measures the
-    coverage of a fit that ignores the calibration's uncertainty.
+    coverage of a fit that ignores the calibration's uncertainty. One robot per volume
+    fraction, as the per-volume-fraction runs model it (each run's posterior is exact
+    given its own jumps whichever robot the others had); with ``calibration="pool"``
+    one for all, as that fit models it.
 
     Parameters
     ----------
@@ -146,21 +149,26 @@ def draw_replicate(
     table = design.reset_index(drop=True).copy()
     heights = np.full(len(table), np.nan)
     truths: dict[float, dict[str, float]] = {}
-    drawn = dataclasses.replace(settings, calibration="sample")
+    # one robot per run: per volume fraction, or one for all with a pooled robot
+    drawn = dataclasses.replace(
+        settings, calibration="pool" if settings.calibration == "pool" else "sample"
+    )
     for _, model, rows in part_models(experiment, table, drawn, priors):
-        phi = float(model.phis[0])
         u, sim = _draw_prior(model, rng)
         values = model.parameter_values(u)
-        sigma = float(values["sigma_mm"][0, 0])
+        obs = model.obs
+        column = np.searchsorted(model.phis, obs.config_phi[obs.config_of_obs])
+        sigma = values["sigma_mm"][0, column]
         n = len(rows)
         eps = (
             rng.standard_normal(n) if settings.noise == "normal" else rng.standard_t(settings.nu, n)
         )
-        heights[rows] = sim[0, model.obs.config_of_obs] + sigma * eps
-        truths[float(phi)] = {
-            name: float(values[name][0, 0])
-            for name in (*model.parameters, *model.calibrated, "sigma_mm")
-        }
+        heights[rows] = sim[0, obs.config_of_obs] + sigma * eps
+        for j, phi in enumerate(model.phis):
+            truths[float(phi)] = {
+                name: float(values[name][0, j])
+                for name in (*model.parameters, *model.calibrated, "sigma_mm")
+            }
     table["height_mm"] = heights
     return table, truths
 
@@ -399,15 +407,18 @@ def rank_draws(part: FitPart, n_rank_draws: int) -> tuple[np.ndarray, bool]:
     return pool[pick], independent
 
 
-def _log_prob_at(model, truth: Mapping[str, float]) -> float:
-    """The log-posterior of a run's model at true parameter values.
+def _log_prob_at(model, truths: Mapping[float, Mapping[str, float]]) -> float:
+    """The log-posterior of a run's model at true parameter values (per volume fraction).
 
     NaN if it has coordinates that are not parameters (a polynomial's coefficients).
     """
     coords = model.coordinates
-    if any(":" in c.name or c.parameter not in truth for c in coords):
+    at = [truths.get(float(model.phis[0]) if c.phi is None else c.phi, {}) for c in coords]
+    if any(":" in c.name or c.parameter not in t for c, t in zip(coords, at, strict=True)):
         return math.nan
-    u = np.array([[float(c.prior.to_u(np.asarray(truth[c.parameter]))) for c in coords]])
+    u = np.array(
+        [[float(c.prior.to_u(np.asarray(t[c.parameter]))) for c, t in zip(coords, at, strict=True)]]
+    )
     return float(model(u)[0][0])
 
 
@@ -469,7 +480,7 @@ def replicate_ranks(
     for part, column, phi in _ranked_columns(result.parts):
         draws_u, independent = rank_draws(part, n_rank_draws)
         values = part.model.parameter_values(draws_u)
-        lp_truth = _log_prob_at(part.model, truths[phi])  # NaN for a quadratic run
+        lp_truth = _log_prob_at(part.model, truths)  # NaN for a quadratic run
         lp_max = float(np.max(part.run.log_prob))
         for name in truths[phi]:
             draws = values[name][:, column]
@@ -547,7 +558,7 @@ def replicate_start_modes(
                 "replicate": int(replicate),
                 "phi": phi,
                 "kinds": ",".join(kinds),
-                "log_prob_truth": _log_prob_at(model, truths[phi]),
+                "log_prob_truth": _log_prob_at(model, truths),
                 "climb_ends": ";".join(
                     f"{v:.3f}" for e in range(s.n_ensembles) for v in ends[0, e][:climbs]
                 ),
@@ -722,6 +733,11 @@ def run_sbc(
         raise ValueError(
             "SBC of a quadratic fit takes jump heights alone (a design of several kinds "
             f"needs phi_mode 'per_phi'), got phi_mode {settings.phi_mode!r}"
+        )
+    if settings.calibration == "pool" and isinstance(design, Measurements):
+        raise ValueError(
+            "SBC with a pooled robot (calibration 'pool') takes jump heights alone: a "
+            "design of several kinds draws one robot per volume fraction"
         )
     if int(n_replicates) < 1:
         raise ValueError(f"n_replicates must be >= 1, got {n_replicates}")

@@ -227,3 +227,122 @@ def test_one_set_of_calibrated_keys() -> None:
     from granbayes._priors import CALIBRATION_UNITS
 
     assert set(CALIBRATION_UNITS) == set(CALIBRATED_KEYS) == set(Experiment().robot_values)
+
+
+# ----------------------------------------------------------------------------------------
+# A robot pooled across volume fractions (calibration="pool")
+# ----------------------------------------------------------------------------------------
+def _calibration() -> dict[str, Prior]:
+    exp = Experiment()
+    return calibration_priors(
+        {"k_spring": exp.robot.k_spring, "amplitude_mm": 20.0},
+        {"k_spring": 150.0, "amplitude_mm": 0.5},
+    )
+
+
+def test_a_pooled_robot_is_every_volume_fraction_s_model_with_one_robot(table) -> None:
+    """log p_pool(theta_1, theta_2, r) = sum_p log p_p(theta_p, r) - (P - 1) log p(r).
+
+    The pooled model's pointwise log-likelihood is each volume fraction's own model's at
+    the same robot, bit for bit (the same rows reach the simulator).
+    """
+    exp, calibrated = Experiment(), _calibration()
+    obs = Observations.from_table(table)
+    pooled = JumpModel(obs, exp, ("depth", "drag"), phi_mode="per_phi_joint", calibrated=calibrated)
+    names = pooled.coordinate_names
+    assert names[: pooled.n_law] == ["k[0.602]", "k[0.622]", "c_d[0.602]", "c_d[0.622]"]
+    rng = np.random.default_rng(11)
+    u = pooled.sample_prior(rng, 6)
+    lp, ll = pooled(u)
+    assert np.all(np.isfinite(lp))
+    robot = [names.index("k_spring"), names.index("amplitude_mm")]
+    prior_r = sum(calibrated[n].logpdf_u(u[:, names.index(n)]) for n in calibrated)
+    total = np.zeros(len(u))
+    for phi in (0.602, 0.622):
+        sub = table[table["phi"] == phi]
+        own = JumpModel(Observations.from_table(sub), exp, ("depth", "drag"), calibrated=calibrated)
+        cols = [names.index(f"k[{phi:g}]"), names.index(f"c_d[{phi:g}]"), *robot]
+        cols.append(names.index(f"sigma_mm[{phi:g}]"))
+        assert own.coordinate_names == [
+            "k",
+            "c_d",
+            "k_spring",
+            "amplitude_mm",
+            "sigma_mm[" + f"{phi:g}]",
+        ]
+        lp_own, ll_own = own(u[:, cols])
+        np.testing.assert_array_equal(ll[:, np.flatnonzero(table["phi"] == phi)], ll_own)
+        total += lp_own
+    np.testing.assert_allclose(lp, total - prior_r, rtol=1e-12)
+    # its law exists at its volume fractions only
+    values = pooled.law_values(u, np.array([0.602, 0.61, 0.622]))
+    np.testing.assert_array_equal(values["k"][:, 0], np.exp(u[:, names.index("k[0.602]")]))
+    assert np.all(np.isnan(values["k"][:, 1]))
+
+
+def test_pooling_a_robot_known_exactly_is_the_per_phi_fit_bit_for_bit(tmp_path, table) -> None:
+    config = FitSettings(terms=("depth",), sampler=TINY, n_threads=1, n_prior_draws=0)
+    plain = fit(Experiment(), table, config, seed=4).datatree["posterior"]
+    pooled = fit(
+        Experiment(), table, dataclasses.replace(config, calibration="pool"), seed=4
+    ).datatree["posterior"]
+    for name in plain.data_vars:
+        np.testing.assert_array_equal(pooled[name].values, plain[name].values)
+
+
+def test_a_pooled_fit_has_one_robot_for_every_volume_fraction(tmp_path, table) -> None:
+    import arviz_stats as azs
+
+    from granbayes._criticism import DiagnoseSettings
+    from granbayes._fitting import compare_commands, screen
+    from granbayes.stats import by_ensemble, summary_table
+
+    exp = _folder(tmp_path, table, "\n[robot.uncertainty]\nk_spring = 150.0\namplitude_mm = 0.5\n")
+    config = FitSettings(terms=("depth",), sampler=TINY, n_threads=1, calibration="pool")
+    res = fit(exp, table, config, seed=5)
+    assert [p.label for p in res.parts] == ["all"]
+    post = res.datatree["posterior"]
+    k_spring = post["k_spring"].values
+    np.testing.assert_array_equal(k_spring[..., 0], k_spring[..., 1])  # one robot
+    assert not np.array_equal(post["k"].values[..., 0], post["k"].values[..., 1])
+    # the summary's R-hat is across ensembles, not over walkers as chains
+    rhat = summary_table(res.datatree)["r_hat"]
+    across = azs.rhat(by_ensemble(res.datatree))
+    assert rhat["k[0.622]"] == pytest.approx(float(across["k"].sel(phi=0.622)), abs=1e-12)
+    assert rhat["k_spring[0.602]"] == pytest.approx(float(across["k_spring"][0]), abs=1e-12)
+    walkers = summary_table(xr_without_runs(res.datatree))["r_hat"]  # ArviZ's, per walker
+    assert walkers["k[0.622]"] != rhat["k[0.622]"]
+    # saved and read back: predictions at either volume fraction use the one run
+    out = tmp_path / "report"
+    out.mkdir()
+    write_fit_report(res.datatree, out, diagnostics_plots=False)
+    saved = load_fit(out / "posterior.nc")
+    assert saved.runs_of(np.array([0.602, 0.622])) == ["all", "all"]
+    pred = predict(saved, "single", 0.622, n_draws=20, rng=1)
+    assert np.all(np.isfinite(pred.height_sim_mm))
+    # what works per volume fraction refuses it, naming why
+    with pytest.raises(ValueError, match="one run per volume fraction"):
+        compare_commands(exp, table, res)
+    with pytest.raises(ValueError, match="pool"):
+        screen(exp, table, dataclasses.replace(config, terms=("depth", "drag")), res.datatree)
+    with pytest.raises(ValueError, match="own copy of the robot"):
+        DiagnoseSettings(calibration="pool")
+
+
+def xr_without_runs(dt):
+    """The DataTree without its ``runs`` record (ArviZ's R-hat over walkers as chains)."""
+    out = dt.copy()
+    out.attrs = {k: v for k, v in dt.attrs.items() if k != "runs"}
+    return out
+
+
+def test_sbc_of_a_pooled_fit_draws_one_robot(table) -> None:
+    exp = dataclasses.replace(Experiment(), calibration_sd=(("k_spring", 150.0),))
+    design = table.drop(columns=["source"], errors="ignore")
+    robots = {}
+    for mode in ("sample", "pool"):
+        config = FitSettings(terms=("depth",), calibration=mode)
+        _, truths = draw_replicate(exp, design, config, default_priors(), np.random.default_rng(7))
+        robots[mode] = {truth["k_spring"] for truth in truths.values()}
+    assert len(robots["sample"]) == 2  # one per volume fraction, as those runs model it
+    assert len(robots["pool"]) == 1

@@ -434,6 +434,7 @@ def test_bad_param(
         (["simulate", "--batch", "in.csv", "--out", "o.csv", "--json"], ["--json"]),
         (["simulate", "--nonsense"], ["unrecognized arguments: --nonsense"]),
         (["frobnicate"], ["invalid choice: 'frobnicate'"]),
+        (["diagnose", "d", "--calibration", "pool"], ["--calibration", "invalid choice: 'pool'"]),
         ([], ["required"]),
     ],
 )

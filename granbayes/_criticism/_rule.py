@@ -115,6 +115,9 @@ class DiagnoseSettings:
         Whether every fit samples the robot parameters ``experiment.toml`` gives an
         uncertainty (:class:`granbayes.FitSettings`), so that no law is credited
         with what a miscalibrated robot explains, or takes the nominal robot as exact.
+        Each volume fraction's fit samples its own copy (the conservative marginal): the
+        fallbacks refit and cross-validate volume fractions on their own, so ``"pool"``
+        (one robot for every volume fraction, one run of them all) is refused.
     """
 
     baseline: tuple[str, ...] = ("depth",)
@@ -133,6 +136,15 @@ class DiagnoseSettings:
     screen_margin: float = 2.0
     n_threads: int | None = None
     calibration: Literal["sample", "nominal"] = "sample"
+
+    def __post_init__(self) -> None:
+        """Check the robot's treatment (the rest is checked where it is used)."""
+        if self.calibration not in ("sample", "nominal"):
+            raise ValueError(
+                f"calibration must be 'sample' or 'nominal' in diagnose, got "
+                f"{self.calibration!r} (diagnose fits, refits and cross-validates each volume "
+                "fraction on its own, each with its own copy of the robot)"
+            )
 
     def candidate_terms(self, current: Sequence[str]) -> list[str]:
         """Terms that may still be added to ``current``.

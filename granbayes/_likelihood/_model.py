@@ -16,7 +16,12 @@ Parametrisations of the force law across volume fractions (``phi_mode``):
 ``"quadratic"``
     each parameter a quadratic in ``x = phi - phi_c`` in its sampling coordinate (log for
     log-scale parameters such as ``k``, square root for coefficients with a uniform prior
-    from zero such as ``c_d``), fitted jointly over all volume fractions.
+    from zero such as ``c_d``), fitted jointly over all volume fractions;
+``"per_phi_joint"``
+    one value per parameter and volume fraction (coordinates ``k[0.602]``), every volume
+    fraction in one model: the per-phi laws of ``"per_phi"``, sampled together so that a
+    calibrated robot is one value for all of them (``FitSettings.calibration="pool"``).
+    Its law exists only at the model's volume fractions (NaN elsewhere).
 
 Length: about 800 lines for one job, the force law's side of the posterior: coordinates
 of every parametrisation (per phi, quadratic in phi), the priors' densities, the one
@@ -54,7 +59,7 @@ __all__ = ["CALIBRATED_KEYS", "Evaluation", "JumpModel", "PhiMode", "evaluate_mo
 CALIBRATED_KEYS: tuple[str, ...] = (*ROBOT_FIELDS, "amplitude_mm")
 
 #: Parametrisation of a model across volume fractions (module docstring).
-PhiMode = Literal["per_phi", "quadratic"]
+PhiMode = Literal["per_phi", "quadratic", "per_phi_joint"]
 
 
 class JumpModel:
@@ -73,7 +78,7 @@ class JumpModel:
     priors : mapping of str to Prior, optional
         Priors per parameter (defaults: :func:`granbayes.default_priors`; a block's
         own parameters fall back on the block's defaults).
-    phi_mode : {"per_phi", "quadratic"}
+    phi_mode : {"per_phi", "quadratic", "per_phi_joint"}
         Parametrisation across volume fractions (module docstring).
     noise : {"normal", "student_t"}
         Noise family of the heights (when ``observations`` are heights).
@@ -112,8 +117,10 @@ class JumpModel:
         n_threads: int | None = None,
         calibrated: Mapping[str, Prior] | None = None,
     ) -> None:
-        if phi_mode not in ("per_phi", "quadratic"):
-            raise ValueError(f"phi_mode must be 'per_phi' or 'quadratic', got {phi_mode!r}")
+        if phi_mode not in ("per_phi", "quadratic", "per_phi_joint"):
+            raise ValueError(
+                f"phi_mode must be 'per_phi', 'quadratic' or 'per_phi_joint', got {phi_mode!r}"
+            )
         if isinstance(observations, Observations):
             blocks: list[Block] = [
                 HeightBlock(observations, noise=noise, nu=nu, sigma_mode=sigma_mode)
@@ -198,6 +205,12 @@ class JumpModel:
             prior = self.priors[name]
             if self.phi_mode == "per_phi":
                 coords.append(Coordinate(name, name, prior))
+                continue
+            if self.phi_mode == "per_phi_joint":
+                coords.extend(
+                    Coordinate(f"{name}[{phi:g}]", name, prior, phi=float(phi))
+                    for phi in self._phis
+                )
                 continue
             coords.append(Coordinate(f"{name}:c0", name, prior, order=0))
             lo, hi = prior.bounds_u
@@ -356,7 +369,7 @@ class JumpModel:
         """
         u = np.atleast_2d(u)
         lp = self.log_prior(u)
-        if self.phi_mode == "per_phi":
+        if self.phi_mode != "quadratic":
             for j, c in enumerate(self._coords):
                 lp = lp - c.prior.log_jacobian(u[:, j])
         return lp
@@ -364,6 +377,16 @@ class JumpModel:
     def _parameter_u(self, u: np.ndarray, x: np.ndarray) -> dict[str, np.ndarray]:
         """Parameters in sampling coordinates at offsets ``x = phi - phi_c``: (n, len(x))."""
         out: dict[str, np.ndarray] = {}
+        if self.phi_mode == "per_phi_joint":  # each volume fraction's own coordinate
+            at = np.abs(x[:, None] - self._x_phis[None, :])
+            which = np.argmin(at, axis=1) if at.size else np.zeros(len(x), dtype=int)
+            missing = ~(at[np.arange(len(x)), which] <= 1e-9) if at.size else np.ones(len(x), bool)
+            for name in self.parameters:
+                columns = [j for j, c in enumerate(self._law) if c.parameter == name]
+                values = u[:, columns][:, which]
+                values[:, missing] = np.nan
+                out[name] = values
+            return out
         for j, c in enumerate(self._law):
             term = u[:, j : j + 1] * (x[None, :] ** c.order)
             out[c.parameter] = out[c.parameter] + term if c.parameter in out else term

@@ -75,9 +75,13 @@ def summary_table(
     the parameter's run, the statistic of the stopping rule, read from the fit's ``runs``
     record. ArviZ's own R-hat would take every walker as an independent chain; the walkers
     of one ensemble move together (each proposal uses the others), which inflates it
-    without saying anything about convergence. Where a row has no recorded value (the
-    ``quadratic`` parametrisation, or a DataTree made elsewhere) ArviZ's value is kept.
-    ESS and MCSE are ArviZ's, over the walkers as chains (as the stopping rule's ESS).
+    without saying anything about convergence (1.55 for every parameter of a converged
+    run of 4 ensembles of 52 walkers, 150 steps). Where a row has no recorded value (the
+    values of a run over several volume fractions: ``quadratic`` laws, a pooled robot)
+    it is ArviZ's R-hat of the draws regrouped by ensemble (:func:`by_ensemble`), the
+    same statistic (within 1e-4 of the record where both exist); for a DataTree made
+    elsewhere, without ensembles, ArviZ's value is kept. ESS and MCSE are ArviZ's, over
+    the walkers as chains (as the stopping rule's ESS).
 
     Parameters
     ----------
@@ -93,7 +97,15 @@ def summary_table(
     pandas.DataFrame
     """
     table = azs.summary(dt, var_names=var_names, ci_prob=ci_prob, ci_kind="eti")
-    for row, value in _ensemble_rhat(dt).items():
+    recorded = _ensemble_rhat(dt)
+    missing = [row for row in table.index if row not in recorded]
+    if missing and _n_ensembles(dt) is not None:
+        names = list(dict.fromkeys(row.split("[")[0] for row in missing))
+        regrouped = azs.summary(
+            by_ensemble(dt), var_names=names, kind="diagnostics", round_to="none"
+        )["r_hat"]
+        recorded |= {row: float(regrouped[row]) for row in missing if row in regrouped.index}
+    for row, value in recorded.items():
         if row in table.index:
             table.loc[row, "r_hat"] = value
     return table
