@@ -9,8 +9,8 @@ calibration as prior (``sample``, the default). A Dask campaign (resumable). Wri
 ``benchmarks/results/miscalibrated_null.csv`` and ``.md``: the false-discovery rate of each
 way with its exact (Clopper-Pearson) 95% interval.
 
-Usage: ``python benchmarks/miscalibrated_null.py [--seeds 20] [--workers 2] [--out DIR]
-[--resume]``
+Usage: ``python benchmarks/miscalibrated_null.py [--seeds 20] [--first-seed 0] [--workers 2]
+[--out DIR] [--resume] [--modes nominal,sample] [--finished-only]``
 """
 
 from __future__ import annotations
@@ -39,6 +39,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("miscalibrated-null"))
     parser.add_argument("--resume", action="store_true")
+    parser.add_argument(
+        "--first-seed",
+        type=int,
+        default=0,
+        help="seeds first-seed..first-seed+seeds-1 (default 0); with another first seed "
+        "the results are named ..._from<first-seed>",
+    )
     parser.add_argument(
         "--issue-robot",
         action="store_true",
@@ -70,10 +77,11 @@ def main(argv: list[str] | None = None) -> int:
     offsets = ISSUE_ROBOT if args.issue_robot else None
     name = "miscalibrated_null_issue_robot" if args.issue_robot else "miscalibrated_null"
     name += "_phi" if args.phi_sd > 0 else ""
+    name += f"_from{args.first_seed}" if args.first_seed else ""
     options = {"offsets_sd": offsets, **({"phi_sd": args.phi_sd} if args.phi_sd > 0 else {})}
     tasks = [
         Task(f"{mode}-{s:03d}", diagnose_miscalibrated, (mode,), options, seed=s)
-        for s in range(args.seeds)
+        for s in range(args.first_seed, args.first_seed + args.seeds)
         for mode in modes
     ]
     description = {"kind": "miscalibrated null", "calibration_sd": MISCALIBRATION}

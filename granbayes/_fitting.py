@@ -27,11 +27,15 @@ every volume fraction correlates with the spring by 0.78-0.83, the motor's mass 
 in small steps, while the affine-invariant moves of one ensemble follow it. Its cost
 against the copies and the fixed robot is measured in
 ``benchmarks/results/calibrated_fit.md``; half of it is the start's climbs in 13
-dimensions, every climb simulating every jump. A start made of the volume fractions' own
-starts (their Laplace approximations combined, then L-BFGS-B) was tried and not kept: the
-copies' starts cost 15 s, and L-BFGS-B on the simulator's slightly rough log-posterior
-another 14 s to stop 4-5 nats below the mode the usual climbs reach (33 s against 35 s,
-and the seed-0 fit needed 400 steps instead of 150). The robot,
+dimensions, every climb simulating every jump. Two starts made of the volume fractions'
+own starts (each volume fraction's run started as on its own, 15 s) were tried on the
+issue's lab (seed 0, one thread) and not kept: their modes combined, then climbed by
+L-BFGS-B (14 s more on the simulator's slightly rough log-posterior, to stop 4-5 nats
+below the mode the usual climbs reach; the fit then needed 400 steps instead of 150,
+148 s against 69 s); and the product of their Laplace approximations with no climb
+(the robot's centre 3 posterior sds from the pooled posterior's, the volume fractions'
+robot posteriors being far from normal along the spring-stiffness ridge: 250 steps,
+81 s). The robot,
 pinned by every volume fraction's jumps, no longer drags the stiffness towards the
 nominal robot (``README``, "A robot known only to its calibration"). ``diagnose`` keeps
 the copies: its fallbacks refit and cross-validate volume fractions on their own.
