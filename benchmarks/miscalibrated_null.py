@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         default=0,
         help="seeds first-seed..first-seed+seeds-1 (default 0); with another first seed "
-        "the results are named ..._from<first-seed>",
+        "the results are named ..._from<first-seed> (and ..._<mode> for one mode)",
     )
     parser.add_argument(
         "--issue-robot",
@@ -78,6 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     name = "miscalibrated_null_issue_robot" if args.issue_robot else "miscalibrated_null"
     name += "_phi" if args.phi_sd > 0 else ""
     name += f"_from{args.first_seed}" if args.first_seed else ""
+    name += "" if modes == MODES else "_" + "_".join(modes)
     options = {"offsets_sd": offsets, **({"phi_sd": args.phi_sd} if args.phi_sd > 0 else {})}
     tasks = [
         Task(f"{mode}-{s:03d}", diagnose_miscalibrated, (mode,), options, seed=s)

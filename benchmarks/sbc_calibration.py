@@ -35,7 +35,7 @@ from granbayes._fitting import FitSettings
 from granbayes._sampler import SamplerSettings
 from granbayes._sbc import run_sbc
 from granbayes.calibration import MISCALIBRATION
-from granbayes.campaign import ClusterSettings
+from granbayes.campaign import ClusterSettings, finished_tasks
 from granbayes.report import markdown_table
 from granbayes.testing import synthetic_jumps
 
@@ -52,6 +52,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--modes", default="nominal,sample", help="calibration modes, in turn")
     parser.add_argument("--name", default="sbc_calibration", help="name of the results files")
+    parser.add_argument(
+        "--finished-only",
+        action="store_true",
+        help="tabulate the replicates finished so far in OUT/<mode>.partial without running "
+        "any (a stopped study; the table says how many finished)",
+    )
     args = parser.parse_args(argv)
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     experiment = dataclasses.replace(
@@ -69,7 +75,21 @@ def main(argv: list[str] | None = None) -> int:
     sampler = SamplerSettings(n_walkers=8, n_ensembles=4, max_steps=5000)
     rows = []
     summaries = {}
+    notes = []
     for mode in modes:
+        if args.finished_only:  # a stopped study: the replicates that finished
+            done, ranks = finished_tasks(args.out / mode)
+            n_done = int(done["status"].eq("ok").sum())
+            notes.append(
+                f"A STOPPED study ({mode}): {n_done} of {args.replicates} replicates finished; "
+                "the others were still running or not started and are not counted (a "
+                "replicate that takes long is not a random one: the table may be biased)."
+            )
+            summaries[mode] = {"finished": n_done, "parameters": stats.summarize_ranks(ranks)}
+            part = stats.sbc_table(summaries[mode]["parameters"])
+            part.insert(0, "fit's robot", mode)
+            rows.append(part)
+            continue
         config = FitSettings(terms=("depth", "drag"), sampler=sampler, calibration=mode)
         res = run_sbc(
             experiment,
@@ -94,6 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# SBC with a robot known only to its calibration (SYNTHETIC replicates)",
         "",
+        *[line for note in notes for line in (note, "")],
         f"{args.replicates} replicates per way ({', '.join(modes)}), seed {SEED}; "
         "calibration sds " + ", ".join(f"{k} {v:g}" for k, v in MISCALIBRATION.items()) + ". "
         "`nominal`: the fit takes the robot as exact; `sample`: it samples the three robot "
