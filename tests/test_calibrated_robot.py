@@ -192,11 +192,15 @@ def test_a_calibrated_fit_reports_the_robot_parameters(tmp_path, table) -> None:
 
 
 def test_sbc_draws_the_robot_from_its_calibration_whatever_the_fit_does(table) -> None:
-    """The replicate's robot is drawn; ``calibration`` says only how the fit treats it."""
+    """The replicate's robot is drawn; ``calibration`` says only how the fit treats it.
+
+    One robot per volume fraction, as per-volume-fraction runs model it; one for all when
+    the fit pools it.
+    """
     exp = dataclasses.replace(Experiment(), calibration_sd=(("k_spring", 150.0),))
     design = table.drop(columns=["source"], errors="ignore")
     got = {}
-    for mode in ("sample", "nominal"):
+    for mode in ("sample", "nominal", "pool"):
         config = FitSettings(terms=("depth",), calibration=mode)
         heights, truths = draw_replicate(
             exp, design, config, default_priors(), np.random.default_rng(7)
@@ -206,6 +210,8 @@ def test_sbc_draws_the_robot_from_its_calibration_whatever_the_fit_does(table) -
     for truth in got["nominal"][1].values():
         assert truth["k_spring"] != exp.robot.k_spring
         assert abs(truth["k_spring"] - exp.robot.k_spring) < 6 * 150.0
+    robots = {mode: {t["k_spring"] for t in truths.values()} for mode, (_, truths) in got.items()}
+    assert len(robots["sample"]) == 2 and len(robots["pool"]) == 1
 
 
 def test_what_is_not_sampled_is_said_to_be_taken_as_exact() -> None:
@@ -310,7 +316,7 @@ def test_a_pooled_fit_has_one_robot_for_every_volume_fraction(tmp_path, table) -
     across = azs.rhat(by_ensemble(res.datatree))
     assert rhat["k[0.622]"] == pytest.approx(float(across["k"].sel(phi=0.622)), abs=1e-12)
     assert rhat["k_spring[0.602]"] == pytest.approx(float(across["k_spring"][0]), abs=1e-12)
-    walkers = summary_table(xr_without_runs(res.datatree))["r_hat"]  # ArviZ's, per walker
+    walkers = summary_table(_without_runs(res.datatree))["r_hat"]  # ArviZ's, per walker
     assert walkers["k[0.622]"] != rhat["k[0.622]"]
     # saved and read back: predictions at either volume fraction use the one run
     out = tmp_path / "report"
@@ -329,20 +335,8 @@ def test_a_pooled_fit_has_one_robot_for_every_volume_fraction(tmp_path, table) -
         DiagnoseSettings(calibration="pool")
 
 
-def xr_without_runs(dt):
+def _without_runs(dt):
     """The DataTree without its ``runs`` record (ArviZ's R-hat over walkers as chains)."""
     out = dt.copy()
     out.attrs = {k: v for k, v in dt.attrs.items() if k != "runs"}
     return out
-
-
-def test_sbc_of_a_pooled_fit_draws_one_robot(table) -> None:
-    exp = dataclasses.replace(Experiment(), calibration_sd=(("k_spring", 150.0),))
-    design = table.drop(columns=["source"], errors="ignore")
-    robots = {}
-    for mode in ("sample", "pool"):
-        config = FitSettings(terms=("depth",), calibration=mode)
-        _, truths = draw_replicate(exp, design, config, default_priors(), np.random.default_rng(7))
-        robots[mode] = {truth["k_spring"] for truth in truths.values()}
-    assert len(robots["sample"]) == 2  # one per volume fraction, as those runs model it
-    assert len(robots["pool"]) == 1
