@@ -144,6 +144,11 @@ class JumpModel:
         self._phis = np.unique(np.concatenate([b.phis for b in blocks]))
         self._x_phis = self._phis - experiment.phi_c
         self._law = self._law_coordinates()
+        #: each parameter's law columns (one per coordinate; per phi, in phi order)
+        self._columns = {
+            name: [j for j, c in enumerate(self._law) if c.parameter == name]
+            for name in self.parameters
+        }
         self.calibrated = dict(calibrated or {})
         unknown = set(self.calibrated) - set(CALIBRATED_KEYS)
         if unknown:
@@ -378,11 +383,10 @@ class JumpModel:
         """Parameters in sampling coordinates at offsets ``x = phi - phi_c``: (n, len(x))."""
         out: dict[str, np.ndarray] = {}
         if self.phi_mode == "per_phi_joint":  # each volume fraction's own coordinate
-            at = np.abs(x[:, None] - self._x_phis[None, :])
-            which = np.argmin(at, axis=1) if at.size else np.zeros(len(x), dtype=int)
-            missing = ~(at[np.arange(len(x)), which] <= 1e-9) if at.size else np.ones(len(x), bool)
-            for name in self.parameters:
-                columns = [j for j, c in enumerate(self._law) if c.parameter == name]
+            at = np.abs(x[:, None] - self._x_phis[None, :])  # the model has >= 1 phi
+            which = np.argmin(at, axis=1)
+            missing = at[np.arange(len(x)), which] > 1e-9
+            for name, columns in self._columns.items():
                 values = u[:, columns][:, which]
                 values[:, missing] = np.nan
                 out[name] = values
