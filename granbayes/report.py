@@ -135,10 +135,17 @@ def write_fit_report(
     summary.to_csv(out / "summary.csv", index=False)
     diag = stats.run_diagnostics(dt)
     diag.to_csv(out / "diagnostics.csv", index=False)
-    loo = stats.loo(dt)
+    loo = stats.loo(dt, log_weights=True)
     kinds = [k for k in KINDS.values() if k.unit_dim in dt["log_likelihood"].dims]
     heights = "height_mm" in dt["observed_data"]
-    pit = stats.loo_pit(dt) if heights else np.array([np.nan])
+    pit = np.array([np.nan])
+    if heights:  # the heights' smoothed weights of the LOO above where it had them
+        reuse = loo["log_weights"] is not None
+        pit = stats.loo_pit(
+            dt,
+            log_weights=loo["log_weights"] if reuse else None,
+            pareto_k=loo["pareto_k"] if reuse else None,
+        )
     pit_p = stats.pit_uniformity(pit) if np.all(np.isfinite(pit)) else float("nan")
     units = ", ".join(f"a {k.unit_dim} ({k.name})" for k in kinds)
     phi_c = json.loads(dt.attrs["experiment"])["phi_c"]
@@ -242,7 +249,7 @@ def write_fit_report(
             title=label,
         )
     if np.all(np.isfinite(pit)):
-        figs["loo_pit.png"] = figures.plot_loo_pit(dt, title=label)
+        figs["loo_pit.png"] = figures.plot_loo_pit(dt, pit=pit, title=label)
     if diagnostics_plots:
         figs["trace.png"] = figures.plot_trace(dt, force_names)
         figs["rank.png"] = figures.plot_rank(dt, force_names)

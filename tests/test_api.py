@@ -452,6 +452,13 @@ def test_loo_pit_values(per_phi: tuple[gb.FitResult, Path]) -> None:
     pit = loo_pit(result.datatree)
     assert pit.shape == (len(PHIS) * 5 * 2,)
     assert ((pit >= 0) & (pit <= 1)).all()
+    # the report reuses LOO's smoothed weights: the same values as smoothing them again
+    res = loo(result.datatree, log_weights=True)
+    again = loo_pit(result.datatree, log_weights=res["log_weights"], pareto_k=res["pareto_k"])
+    np.testing.assert_array_equal(again, pit)
+    assert "log_weights" not in loo(result.datatree)
+    with pytest.raises(ValueError, match="together"):
+        loo_pit(result.datatree, log_weights=res["log_weights"])
 
 
 # ----------------------------------------------------------------------------------------

@@ -11,7 +11,6 @@ once saved.
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -21,7 +20,7 @@ from matplotlib.figure import Figure
 
 from ..commands import COMMAND_NAMES
 from ..stats import CI_PROB, eti_probs, run_diagnostics
-from ..stats._loo import _ignore_pareto_k_warning, _pit_tree
+from ..stats._loo import loo_pit
 from ..stats._sbc import _sbc_dataset
 from ..stats._summaries import _n_ensembles, rank_test_draws
 from ._analyses import panel_grid
@@ -381,19 +380,28 @@ def _draw_uniform_band(fig, n: int, band_prob: float, seed: int) -> None:
 
 
 def plot_loo_pit(
-    dt: xr.DataTree, *, band_prob: float = 0.95, seed: int = 0, title: str = ""
+    dt: xr.DataTree,
+    *,
+    pit: np.ndarray | None = None,
+    band_prob: float = 0.95,
+    seed: int = 0,
+    title: str = "",
 ) -> Figure:
-    """LOO-PIT calibration plot of the jump heights (``arviz_plots.plot_loo_pit``).
+    """LOO-PIT calibration plot of the jump heights (``arviz_plots.plot_ecdf_pit``).
 
     The difference between the ECDF of the LOO-PIT values and the uniform CDF, with
     ArviZ's simultaneous envelope and ``pot_c`` p-value; points that drive a departure are
     highlighted. Above zero in the middle (an S shape): the predictive distribution is too
-    wide; below: too narrow; a shift at one end: biased predictions.
+    wide; below: too narrow; a shift at one end: biased predictions. This is
+    ``arviz_plots.plot_loo_pit`` drawn from given values: that function computes them
+    again (a second Pareto smoothing of every jump's weights, a second in a report).
 
     Parameters
     ----------
     dt : xarray.DataTree
         A fit's DataTree.
+    pit : ndarray, shape (jump,), optional
+        The LOO-PIT values (:func:`granbayes.stats.loo_pit`); computed if not given.
     band_prob : float
         Probability of the grey simultaneous band of a uniform sample of the same size
         (``arviz_stats.ecdf_utils.ecdf_pit``).
@@ -407,15 +415,23 @@ def plot_loo_pit(
     matplotlib.figure.Figure
     """
     import arviz_plots as azp
+    from arviz_base import convert_to_datatree
 
-    with warnings.catch_warnings():
-        _ignore_pareto_k_warning()  # the PSIS weights' k values are reported by ``loo``
-        pc = azp.plot_loo_pit(
-            _pit_tree(dt),
-            var_names=["height_mm"],
-            backend="matplotlib",
-            figure_kwargs={"figsize": (6.4, 3.6)},
-        )
+    if pit is None:
+        pit = loo_pit(dt)
+    jumps = dt["observed_data"]["jump"]
+    values = xr.Dataset({"height_mm": (("jump",), np.asarray(pit, dtype=float))})
+    values = values.assign_coords(jump=jumps.values)
+    pc = azp.plot_ecdf_pit(
+        convert_to_datatree(values, group="loo_pit"),
+        var_names=["height_mm"],
+        group="loo_pit",
+        sample_dims=["jump"],
+        method="pot_c",
+        backend="matplotlib",
+        visuals={"ylabel": {}, "remove_axis": False, "xlabel": {"text": "LOO-PIT"}},
+        figure_kwargs={"figsize": (6.4, 3.6)},
+    )
     fig = pc.viz["figure"].item()
     n = dt["observed_data"].sizes["jump"]
     _draw_uniform_band(fig, n, band_prob, seed)

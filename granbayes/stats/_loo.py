@@ -77,7 +77,7 @@ def unit_log_likelihood(dt: xr.DataTree) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(arrays, axis=-1), np.concatenate(phis)
 
 
-def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
+def loo(dt: xr.DataTree | np.ndarray, *, log_weights: bool = False) -> dict[str, object]:
     """PSIS-LOO of a fit: jump heights, or every unit of every kind of measurement.
 
     Parameters
@@ -87,6 +87,10 @@ def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
         the units of all, :func:`unit_log_likelihood`), or a pointwise log-likelihood
         array of shape ``(chain, draw, unit)`` (PSIS with relative efficiency 1: the kept
         draws are thinned to roughly independent ones).
+    log_weights : bool
+        Whether to return the smoothed log weights too (``log_weights``: ArviZ's
+        DataArray over ``(jump, chain, draw)``; ``None`` unless the fit has jump heights
+        alone), which :func:`loo_pit` can reuse instead of smoothing them again.
 
     Returns
     -------
@@ -109,16 +113,17 @@ def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
             "max_pareto_k": float(np.nanmax(k)),
             "good_k": good_k,
             "n_bad_k": int(np.sum(k > good_k)),
+            **({"log_weights": None} if log_weights else {}),
         }
     if len(dt["log_likelihood"].data_vars) > 1:
-        return loo(unit_log_likelihood(dt)[0])
+        return loo(unit_log_likelihood(dt)[0], log_weights=log_weights)
     (var_name,) = dt["log_likelihood"].data_vars
     with warnings.catch_warnings():
         _ignore_pareto_k_warning()  # the k values are returned
         res = azs.loo(dt, pointwise=True, var_name=var_name)
     k = np.asarray(res.pareto_k)
     good_k = float(res.good_k)
-    return {
+    out = {
         "elpd": float(res.elpd),
         "se": float(res.se),
         "p": float(res.p),
@@ -128,6 +133,9 @@ def loo(dt: xr.DataTree | np.ndarray) -> dict[str, object]:
         "good_k": good_k,
         "n_bad_k": int(np.sum(k > good_k)),
     }
+    if log_weights:
+        out["log_weights"] = res.log_weights if var_name == "height_mm" else None
+    return out
 
 
 def _good_k(n_samples: int) -> float:
@@ -236,25 +244,47 @@ def cell_loo(dt: xr.DataTree) -> dict:
     return loo(summed)
 
 
-def loo_pit(dt: xr.DataTree) -> np.ndarray:
-    """LOO-PIT values of the measured heights (``arviz.loo_pit``, PSIS-LOO weights).
+def loo_pit(
+    dt: xr.DataTree,
+    *,
+    log_weights: xr.DataArray | None = None,
+    pareto_k: np.ndarray | None = None,
+) -> np.ndarray:
+    """LOO-PIT values of the measured heights (``arviz_stats.loo_pit``, PSIS-LOO weights).
 
     ``p(new height <= measured height | all other jumps)`` per jump: uniform on (0, 1) for
     a calibrated predictive distribution. Needs the ``posterior_predictive``,
-    ``log_likelihood`` and ``observed_data`` groups (variable ``height_mm``).
+    ``log_likelihood`` and ``observed_data`` groups (variable ``height_mm``). The tails
+    are Pareto-smoothed (``pareto_pit=True``), as ArviZ's ``plot_loo_pit`` computes them
+    for its ``pot_c`` test: the values :func:`pit_uniformity` tests and
+    :func:`granbayes.figures.plot_loo_pit` draws are the same.
 
     Parameters
     ----------
     dt : xarray.DataTree
         A fit.
+    log_weights : xarray.DataArray, optional
+        The jump heights' smoothed log weights (:func:`loo` with ``log_weights=True``),
+        given with ``pareto_k``; by default they are computed (the larger part of the cost).
+    pareto_k : ndarray, optional
+        Their Pareto shape per jump (``loo``'s ``pareto_k``).
 
     Returns
     -------
     ndarray, shape (jump,)
     """
+    given = {}
+    if (log_weights is None) != (pareto_k is None):
+        raise ValueError("loo_pit: give log_weights and pareto_k together, or neither")
+    if log_weights is not None:
+        k = xr.DataArray(np.asarray(pareto_k, dtype=float), dims=["jump"])
+        given = {
+            "log_weights": log_weights.to_dataset(name="height_mm"),
+            "pareto_k": k.to_dataset(name="height_mm"),
+        }
     with warnings.catch_warnings():
         _ignore_pareto_k_warning()  # the PSIS weights' k values are reported by ``loo``
-        pit = azs.loo_pit(_pit_tree(dt), var_names=["height_mm"])
+        pit = azs.loo_pit(_pit_tree(dt), var_names=["height_mm"], pareto_pit=True, **given)
     return np.asarray(pit["height_mm"].values, dtype=float)
 
 
