@@ -20,21 +20,29 @@ over five frames), force noise on [0.05, 2] N. They are written in the results.
 
 Writes ``benchmarks/results/sbc_joint.json`` and ``.md`` (per parameter: coverage of the
 central 50% and 90% intervals with its binomial SE, the mean normalised rank, the
-rank-uniformity tests) and the campaign in ``--out``.
+rank-uniformity tests; the log-posterior's rank as a test quantity of the whole parameter
+vector; how spread the ranked draws are against every kept draw) and the campaign in
+``--out``. ``--tau-factor F`` runs every chain to F autocorrelation times instead of the
+sampler's 10 (a posterior sampled for longer: is the coverage the chains'?), and
+``--name NAME`` writes ``sbc_joint_NAME.*`` instead.
 
 Usage: ``python benchmarks/sbc_joint.py [--replicates 50] [--workers 2] [--out DIR]
-[--resume]``
+[--resume] [--tau-factor F] [--name NAME]``
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shutil
 from pathlib import Path
 
+import pandas as pd
+
 from granbayes import Prior, default_priors, load_experiment, load_measurements, stats
 from granbayes._fitting import FitSettings
+from granbayes._sampler import SamplerSettings
 from granbayes._sbc import run_sbc
 from granbayes.campaign import ClusterSettings
 from granbayes.report import markdown_table
@@ -74,7 +82,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("sbc-joint"))
     parser.add_argument("--resume", action="store_true")
+    parser.add_argument(
+        "--tau-factor", type=float, help="chains to this many autocorrelation times (10)"
+    )
+    parser.add_argument("--name", help="results named sbc_joint_NAME")
     args = parser.parse_args(argv)
+    stem = "sbc_joint" + (f"_{args.name}" if args.name else "")
+    sampler = SamplerSettings()
+    if args.tau_factor is not None:
+        sampler = dataclasses.replace(sampler, tau_factor=args.tau_factor)
     folder = design_folder(args.out.with_name(args.out.name + "-design"))
     experiment = load_experiment(folder)
     design = load_measurements(folder, experiment)
@@ -83,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         experiment,
         design,
         args.out,
-        settings=FitSettings(terms=TERMS),
+        settings=FitSettings(terms=TERMS, sampler=sampler),
         n_replicates=args.replicates,
         seed=SEED,
         priors=priors,
@@ -96,13 +112,13 @@ def main(argv: list[str] | None = None) -> int:
     elapsed = tasks.loc[tasks["status"] == "ok", "elapsed_s"].astype(float)
     counts = {kind: int(t.shape[0]) for kind, t in design.tables.items()}
     (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "sbc_joint.json").write_text(
+    (HERE / "results" / f"{stem}.json").write_text(
         json.dumps(res.summary, indent=1, default=str) + "\n"
     )
     # the ranks and their ECDF figure, committed beside the table
     for name, saved in (
-        ("ranks.csv", "sbc_joint_ranks.csv"),
-        ("sbc_ecdf.png", "sbc_joint_ecdf.png"),
+        ("ranks.csv", f"{stem}_ranks.csv"),
+        ("sbc_ecdf.png", f"{stem}_ecdf.png"),
     ):
         shutil.copyfile(args.out / name, HERE / "results" / saved)
     lines = [
@@ -119,7 +135,14 @@ def main(argv: list[str] | None = None) -> int:
         )
         + f". Replicate time: median {elapsed.median():.0f} s "
         f"(range {elapsed.min():.0f}-{elapsed.max():.0f} s), one numba thread per worker, "
-        f"{args.workers} workers.",
+        f"{args.workers} workers"
+        + (
+            f"; every chain run to {args.tau_factor:g} autocorrelation times (the sampler's "
+            f"rule: {SamplerSettings().tau_factor:g})"
+            if args.tau_factor is not None
+            else ""
+        )
+        + ".",
         "",
         markdown_table(table, ".3g"),
         "",
@@ -143,9 +166,32 @@ def main(argv: list[str] | None = None) -> int:
         )
         + ".",
     ]
-    (HERE / "results" / "sbc_joint.md").write_text("\n".join(lines) + "\n")
+    lines += _tails_lines(res.summary["log_prob_rank"], res.ranks)
+    (HERE / "results" / f"{stem}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
+
+
+def _tails_lines(lp: dict, ranks: pd.DataFrame) -> list[str]:
+    """The log-posterior's rank and the ranked draws' spread, as the summary reads them."""
+    if not lp.get("n_runs"):
+        return []
+    (row,) = lp["per_phi"]
+    spread = ranks.groupby("parameter", sort=False)["spread_ratio"].median()
+    return [
+        "",
+        f"Log-posterior rank (a test quantity of the whole parameter vector): the truth's "
+        f"log-posterior is in the lowest tenth of the 99 ranked draws' in "
+        f"{lp['n_lowest_tenth']} of {lp['n_runs']} runs (expected "
+        f"{lp['expected_fraction']:.2f}; one-sided exact binomial p = "
+        f"{lp['p_lowest_tenth']:.2g}); mean normalised rank "
+        f"{row['mean_normalised_rank']:.2f}, uniformity p chi-square "
+        f"{row['uniformity']['p_value']:.2g}, pot_c {row['uniformity']['pot_c_p_value']:.2g}. "
+        "Spread of the ranked draws (16-84% range over that of every kept draw; median over "
+        "runs; about 1 if they are as spread as the run's sample): "
+        + ", ".join(f"{name} {value:.2f}" for name, value in spread.items())
+        + ".",
+    ]
 
 
 if __name__ == "__main__":

@@ -463,11 +463,18 @@ def replicate_ranks(
     list of dict
         One row per volume fraction and parameter: ``replicate``, ``phi``,
         ``parameter``, ``true_value``, ``rank`` (number of draws below the truth),
-        ``n_draws``, ``posterior_median``, and the run's ``converged``, ``tau_max``
-        [steps], ``n_steps``, ``independent_draws``, ``log_prob_truth`` (the
-        log-posterior at the true values) and ``log_prob_max`` (the highest of the kept
-        draws'): a truth far above every draw means the sampler missed its mode, which
-        no convergence check of the run can see.
+        ``n_draws``, ``posterior_median``, ``spread_ratio`` (the 16-84% range of the
+        ranked draws over that of every kept draw: about 1 if the ranked draws are as
+        spread as the run's sample, below 1 if they are correlated), and the run's
+        ``converged``, ``tau_max`` [steps], ``n_steps``, ``independent_draws``,
+        ``log_prob_truth`` (the log-posterior at the true values), ``log_prob_max`` (the
+        highest of the kept draws'): a truth far above every draw means the sampler
+        missed its mode, which no convergence check of the run can see; and
+        ``log_prob_rank``, the number of ranked draws whose log-posterior is below the
+        truth's: the rank of the log-posterior as a test quantity of the whole
+        parameter vector (Modrák et al. 2023, Bayesian Analysis), uniform if the fit is
+        calibrated, piled at 0 if truths lie in the posterior's tails (too narrow or
+        shifted in any direction, which marginal ranks can each show too weakly to test).
     """
     truth_seed, fit_seed = spawn_seeds(seed, 2)
     if isinstance(design, Measurements):
@@ -480,8 +487,14 @@ def replicate_ranks(
     for part, column, phi in _ranked_columns(result.parts):
         draws_u, independent = rank_draws(part, n_rank_draws)
         values = part.model.parameter_values(draws_u)
+        kept = part.model.parameter_values(part.run.samples.reshape(-1, draws_u.shape[1]))
         lp_truth = _log_prob_at(part.model, truths)  # NaN for a quadratic run
         lp_max = float(np.max(part.run.log_prob))
+        lp_rank = (
+            int(np.sum(np.asarray(part.model(draws_u)[0]) < lp_truth))
+            if np.isfinite(lp_truth)
+            else math.nan
+        )
         for name in truths[phi]:
             draws = values[name][:, column]
             true = truths[phi][name]
@@ -494,15 +507,23 @@ def replicate_ranks(
                     "rank": int(np.sum(draws < true)),
                     "n_draws": int(n_rank_draws),
                     "posterior_median": float(np.median(draws)),
+                    "spread_ratio": _spread_ratio(draws, kept[name][:, column]),
                     "converged": bool(part.run.converged),
                     "tau_max": float(np.nanmax(part.run.tau)),
                     "n_steps": int(part.run.n_steps),
                     "independent_draws": bool(independent),
                     "log_prob_truth": lp_truth,
                     "log_prob_max": lp_max,
+                    "log_prob_rank": lp_rank,
                 }
             )
     return rows
+
+
+def _spread_ratio(draws: np.ndarray, kept: np.ndarray) -> float:
+    """The 16-84% range of ``draws`` over that of ``kept`` (NaN if the latter is 0)."""
+    width = float(np.subtract(*np.quantile(kept, [0.84, 0.16])))
+    return float(np.subtract(*np.quantile(draws, [0.84, 0.16]))) / width if width > 0 else math.nan
 
 
 def replicate_start_modes(
@@ -598,6 +619,43 @@ def _mode_check(ranks: pd.DataFrame, gap: float) -> dict[str, Any]:
     }
 
 
+def _log_prob_rank_check(ranks: pd.DataFrame) -> dict[str, Any]:
+    """The ranks of the truth's log-posterior among the ranked draws' (``log_prob_rank``).
+
+    A test quantity of the whole parameter vector (Modrák et al. 2023): uniform if the
+    fit is calibrated; too many in the lowest tenth of the possible ranks means truths in
+    the posterior's tails, which a one-sided exact binomial test measures.
+    """
+    if not len(ranks) or "log_prob_rank" not in ranks:
+        return {"n_runs": 0}
+    runs = ranks.drop_duplicates(["replicate", "phi"])
+    runs = runs[np.isfinite(runs["log_prob_rank"].astype(float))]
+    if not len(runs):
+        return {"n_runs": 0}
+    frame = runs.assign(parameter="log_posterior", rank=runs["log_prob_rank"].astype(int))
+    n_draws = int(frame["n_draws"].iloc[0])
+    values = frame["rank"].to_numpy(int)
+    below = max(1, round(0.1 * (n_draws + 1)))  # ranks 0..below-1: the lowest tenth
+    expected = below / (n_draws + 1)
+    low = int(np.sum(values < below))
+    from scipy.stats import binomtest
+
+    test = binomtest(low, len(values), expected, alternative="greater")
+
+    return {
+        "what": "rank of each run's truth's log-posterior among its ranked draws' (a test "
+        "quantity of the whole parameter vector): uniform if calibrated; piled in the "
+        "lowest tenth if truths lie in the posterior's tails",
+        "n_runs": len(values),
+        "n_lowest_tenth": low,
+        "expected_fraction": expected,
+        "p_lowest_tenth": float(test.pvalue),
+        "per_phi": stats.summarize_ranks(
+            frame[["parameter", "phi", "replicate", "rank", "n_draws", "converged"]]
+        ),
+    }
+
+
 def _summary_markdown(summary: Mapping[str, Any]) -> str:
     lines = [
         f"# Simulation-based calibration of `fit` ({', '.join(summary['terms'])})",
@@ -633,6 +691,20 @@ def _summary_markdown(summary: Mapping[str, Any]) -> str:
             f"log-posterior exceeds every kept draw's by more than {mc['gap_nats']:g} nats "
             f"(median excess of the truth over the best draw: {mc['excess_nats_median']:.1f}"
             " nats; a draw from the posterior lies below its mode by about d/2).",
+        ]
+    lp = summary.get("log_prob_rank", {})
+    if lp.get("n_runs"):
+        pot = [row["uniformity"]["pot_c_p_value"] for row in lp["per_phi"]]
+        lines += [
+            "",
+            f"Log-posterior rank (the whole parameter vector): in {lp['n_lowest_tenth']} of "
+            f"{lp['n_runs']} runs the truth's log-posterior is in the lowest tenth of the "
+            f"ranked draws' (expected {lp['expected_fraction']:.2f}; one-sided exact binomial "
+            f"p = {lp['p_lowest_tenth']:.3g}); uniformity p chi-square "
+            + ", ".join(f"{row['uniformity']['p_value']:.3g}" for row in lp["per_phi"])
+            + ", pot_c "
+            + ", ".join("-" if p is None else f"{p:.3g}" for p in pot)
+            + " (per volume fraction).",
         ]
     lines += [
         "",
@@ -867,6 +939,7 @@ def _write_outputs(
         "coverage": "fraction of replicates whose true value lies in the central "
         "interval of the ranked draws; se = sqrt(c (1 - c) / n)",
         "mode_check": _mode_check(ranks, settings.sampler.mode_gap),
+        "log_prob_rank": _log_prob_rank_check(ranks),
         "parameters": stats.summarize_ranks(ranks) if len(ranks) else [],
     }
     write_json(work / "summary.json", summary)

@@ -535,6 +535,10 @@ def test_sbc_of_a_joint_fit_draws_every_kinds_noise_and_ranks_it(
     # the truth's log-posterior is recorded, and every run's truth checked against its draws
     assert np.isfinite(ranks["log_prob_truth"]).all()
     assert summary["mode_check"]["n_runs"] == 2
+    # and the log-posterior's rank, one per run, with the ranked draws' spread
+    assert ranks["log_prob_rank"].between(0, ranks["n_draws"]).all()
+    assert summary["log_prob_rank"]["n_runs"] == 2
+    assert (ranks["spread_ratio"] > 0).all()
 
 
 def test_mode_check_flags_runs_whose_truth_beats_every_draw_by_more_than_the_gap() -> None:
@@ -552,6 +556,32 @@ def test_mode_check_flags_runs_whose_truth_beats_every_draw_by_more_than_the_gap
     check = _mode_check(pd.DataFrame(rows), gap=5.0)
     assert (check["n_runs"], check["n_missed"]) == (3, 1)
     assert check["missed"] == [{"replicate": 2, "phi": 0.612, "excess_nats": 180.0}]
+
+
+def test_log_prob_rank_check_flags_truths_in_the_tails() -> None:
+    """Log-posterior ranks piled at the bottom (truths less probable than the draws) give a
+    small one-sided p; uniform ranks do not. Ranks repeat per parameter: one per run."""
+    from granbayes._sbc import _log_prob_rank_check
+
+    def frame(values: np.ndarray) -> pd.DataFrame:
+        rows = []
+        for rep, r in enumerate(values):
+            for name in ("k", "c_d"):
+                rows.append(
+                    {"replicate": rep, "phi": 0.612, "parameter": name, "rank": 0}
+                    | {"n_draws": 99, "converged": True, "log_prob_rank": float(r)}
+                )
+        return pd.DataFrame(rows)
+
+    rng = np.random.default_rng(3)
+    uniform = _log_prob_rank_check(frame(rng.integers(0, 100, 60)))
+    tails = _log_prob_rank_check(frame(np.r_[rng.integers(0, 10, 20), rng.integers(0, 100, 40)]))
+    assert uniform["n_runs"] == tails["n_runs"] == 60
+    assert uniform["expected_fraction"] == pytest.approx(0.1)
+    # 20 of 60 forced into the lowest tenth, ~4 more by chance: 24 against an expected 6
+    assert tails["n_lowest_tenth"] >= 20 and tails["p_lowest_tenth"] < 1e-5
+    assert uniform["p_lowest_tenth"] > 0.01
+    assert _log_prob_rank_check(frame(np.full(3, np.nan)))["n_runs"] == 0
 
 
 def test_start_modes_of_a_replicate_record_every_climb(joint_design: Path) -> None:
