@@ -27,7 +27,7 @@ sampler's 10 (a posterior sampled for longer: is the coverage the chains'?), and
 ``--name NAME`` writes ``sbc_joint_NAME.*`` instead.
 
 Usage: ``python benchmarks/sbc_joint.py [--replicates 50] [--workers 2] [--out DIR]
-[--resume] [--tau-factor F] [--name NAME]``
+[--resume] [--tau-factor F] [--name NAME] [--seed N]``
 """
 
 from __future__ import annotations
@@ -86,6 +86,9 @@ def main(argv: list[str] | None = None) -> int:
         "--tau-factor", type=float, help="chains to this many autocorrelation times (10)"
     )
     parser.add_argument("--name", help="results named sbc_joint_NAME")
+    parser.add_argument(
+        "--seed", type=int, default=SEED, help=f"master seed ({SEED}): other data sets"
+    )
     args = parser.parse_args(argv)
     stem = "sbc_joint" + (f"_{args.name}" if args.name else "")
     sampler = SamplerSettings()
@@ -101,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         args.out,
         settings=FitSettings(terms=TERMS, sampler=sampler),
         n_replicates=args.replicates,
-        seed=SEED,
+        seed=args.seed,
         priors=priors,
         cluster=ClusterSettings(n_workers=args.workers, numba_threads=1),
         resume=args.resume,
@@ -124,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# SBC of the joint fit: heights + tracked jumps + intrusion curves (SYNTHETIC)",
         "",
-        f"{args.replicates} replicates, seed {SEED}, law {' + '.join(TERMS)}; replicates "
+        f"{args.replicates} replicates, seed {args.seed}, law {' + '.join(TERMS)}; replicates "
         "made by the independent oracle (`granbayes.testing.replicate_measurements`) from "
         f"prior draws; design (`benchmarks/sbc_joint.py`): {counts['heights']} jumps, "
         f"{design.n_units_of('trajectories')} tracked jumps ({counts['trajectories']} frames "
