@@ -641,7 +641,6 @@ def _log_prob_rank_check(ranks: pd.DataFrame) -> dict[str, Any]:
     from scipy.stats import binomtest
 
     test = binomtest(low, len(values), expected, alternative="greater")
-
     return {
         "what": "rank of each run's truth's log-posterior among its ranked draws' (a test "
         "quantity of the whole parameter vector): uniform if calibrated; piled in the "

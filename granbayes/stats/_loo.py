@@ -98,7 +98,8 @@ def loo(dt: xr.DataTree | np.ndarray, *, log_weights: bool = False) -> dict[str,
         ``elpd``, ``se``, ``p`` (effective number of parameters), ``elpd_i`` and
         ``pareto_k`` (ndarrays over jumps), ``max_pareto_k``, ``good_k`` (ArviZ's
         sample-size dependent threshold ``min(1 - 1/log10(S), 0.7)`` for S draws, above
-        which PSIS is unreliable) and ``n_bad_k`` (jumps with k > ``good_k``).
+        which PSIS is unreliable) and ``n_bad_k`` (jumps with k > ``good_k``); with
+        ``log_weights=True``, ``log_weights`` too.
     """
     if isinstance(dt, np.ndarray):
         elpd_i, k, p_i = array_stats.loo(np.moveaxis(dt, -1, 0), chain_axis=-2, draw_axis=-1)
