@@ -388,23 +388,30 @@ def rank_draws(part: FitPart, n_rank_draws: int) -> tuple[np.ndarray, bool]:
     independent : bool
         Whether the draws are spaced by at least ``tau``.
     """
-    run = part.run
-    samples = run.samples
-    _, n_draw, ndim = samples.shape
+    chains, draws, independent = _rank_picks(part.run, n_rank_draws)
+    return part.run.samples[chains, draws], independent
+
+
+def _rank_picks(run, n_rank_draws: int) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(chain, draw) indices of :func:`rank_draws`' draws, and whether they are independent.
+
+    The kept draws of every walker at one thinned step, step after step, ``n_rank_draws``
+    evenly spaced over them.
+    """
+    n_chain, n_draw, _ = run.samples.shape
     tau = float(np.nanmax(run.tau)) if np.any(np.isfinite(run.tau)) else math.nan
     step = max(1, math.ceil(tau / run.thin)) if math.isfinite(tau) and tau > 0 else 1
-    thinned = samples[:, (n_draw - 1) % step :: step]  # always keeps the last draw
-    pool = np.swapaxes(thinned, 0, 1).reshape(-1, ndim)
-    independent = len(pool) >= n_rank_draws
+    steps = np.arange((n_draw - 1) % step, n_draw, step)  # always keeps the last draw
+    independent = len(steps) * n_chain >= n_rank_draws
     if not independent:
-        pool = np.swapaxes(samples, 0, 1).reshape(-1, ndim)
-    if len(pool) < n_rank_draws:
+        steps = np.arange(n_draw)
+    if len(steps) * n_chain < n_rank_draws:
         raise ValueError(
-            f"n_rank_draws={n_rank_draws} exceeds the {len(pool)} posterior draws kept "
-            "(walkers x ensembles x n_draws of the sampler settings)"
+            f"n_rank_draws={n_rank_draws} exceeds the {len(steps) * n_chain} posterior draws "
+            "kept (walkers x ensembles x n_draws of the sampler settings)"
         )
-    pick = np.round(np.linspace(0, len(pool) - 1, n_rank_draws)).astype(int)
-    return pool[pick], independent
+    pick = np.round(np.linspace(0, len(steps) * n_chain - 1, n_rank_draws)).astype(int)
+    return pick % n_chain, steps[pick // n_chain], independent
 
 
 def _log_prob_at(model, truths: Mapping[float, Mapping[str, float]]) -> float:
@@ -485,16 +492,13 @@ def replicate_ranks(
     result = fit(experiment, table, settings, seed=fit_seed, priors=priors)
     rows = []
     for part, column, phi in _ranked_columns(result.parts):
-        draws_u, independent = rank_draws(part, n_rank_draws)
-        values = part.model.parameter_values(draws_u)
-        kept = part.model.parameter_values(part.run.samples.reshape(-1, draws_u.shape[1]))
+        chains, steps, independent = _rank_picks(part.run, n_rank_draws)
+        values = part.model.parameter_values(part.run.samples[chains, steps])
+        kept = part.model.parameter_values(part.run.samples.reshape(-1, part.model.ndim))
         lp_truth = _log_prob_at(part.model, truths)  # NaN for a quadratic run
         lp_max = float(np.max(part.run.log_prob))
-        lp_rank = (
-            int(np.sum(np.asarray(part.model(draws_u)[0]) < lp_truth))
-            if np.isfinite(lp_truth)
-            else math.nan
-        )
+        lp_draws = part.run.log_prob[chains, steps]
+        lp_rank = int(np.sum(lp_draws < lp_truth)) if np.isfinite(lp_truth) else math.nan
         for name in truths[phi]:
             draws = values[name][:, column]
             true = truths[phi][name]

@@ -139,13 +139,10 @@ def write_fit_report(
     kinds = [k for k in KINDS.values() if k.unit_dim in dt["log_likelihood"].dims]
     heights = "height_mm" in dt["observed_data"]
     pit = np.array([np.nan])
-    if heights:  # the heights' smoothed weights of the LOO above where it had them
-        reuse = loo["log_weights"] is not None
-        pit = stats.loo_pit(
-            dt,
-            log_weights=loo["log_weights"] if reuse else None,
-            pareto_k=loo["pareto_k"] if reuse else None,
-        )
+    if heights:  # with the heights' smoothed weights of the LOO above, where it has them
+        weights = loo["log_weights"]
+        pareto_k = None if weights is None else loo["pareto_k"]
+        pit = stats.loo_pit(dt, log_weights=weights, pareto_k=pareto_k)
     pit_p = stats.pit_uniformity(pit) if np.all(np.isfinite(pit)) else float("nan")
     units = ", ".join(f"a {k.unit_dim} ({k.name})" for k in kinds)
     phi_c = json.loads(dt.attrs["experiment"])["phi_c"]
