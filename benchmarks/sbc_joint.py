@@ -27,7 +27,7 @@ sampler's 10 (a posterior sampled for longer: is the coverage the chains'?), and
 ``--name NAME`` writes ``sbc_joint_NAME.*`` instead.
 
 Usage: ``python benchmarks/sbc_joint.py [--replicates 50] [--workers 2] [--out DIR]
-[--resume] [--tau-factor F] [--name NAME] [--seed N]``
+[--resume] [--tau-factor F] [--name NAME] [--seed N] [--kinds K,...]``
 """
 
 from __future__ import annotations
@@ -89,6 +89,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--seed", type=int, default=SEED, help=f"master seed ({SEED}): other data sets"
     )
+    parser.add_argument(
+        "--kinds",
+        default="heights,trajectories,intrusions",
+        help="the kinds of measurement fitted (and simulated): which one a departure needs",
+    )
     args = parser.parse_args(argv)
     stem = "sbc_joint" + (f"_{args.name}" if args.name else "")
     sampler = SamplerSettings()
@@ -96,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         sampler = dataclasses.replace(sampler, tau_factor=args.tau_factor)
     folder = design_folder(args.out.with_name(args.out.name + "-design"))
     experiment = load_experiment(folder)
-    design = load_measurements(folder, experiment)
+    design = load_measurements(folder, experiment, use=args.kinds.split(","))
     priors = {**default_priors(), **NOISE_PRIORS}
     res = run_sbc(
         experiment,
@@ -129,10 +134,12 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"{args.replicates} replicates, seed {args.seed}, law {' + '.join(TERMS)}; replicates "
         "made by the independent oracle (`granbayes.testing.replicate_measurements`) from "
-        f"prior draws; design (`benchmarks/sbc_joint.py`): {counts['heights']} jumps, "
-        f"{design.n_units_of('trajectories')} tracked jumps ({counts['trajectories']} frames "
-        f"at {DESIGN.fps:g}/s), {design.n_units_of('intrusions')} intrusion tests "
-        f"({counts['intrusions']} samples) at phi {DESIGN.phis[0]:g}. Noise priors: "
+        f"prior draws; design (`benchmarks/sbc_joint.py`, kinds {args.kinds}): "
+        f"{counts.get('heights', 0)} jumps, "
+        f"{design.n_units_of('trajectories') if 'trajectories' in counts else 0} tracked jumps "
+        f"({counts.get('trajectories', 0)} frames at {DESIGN.fps:g}/s), "
+        f"{design.n_units_of('intrusions') if 'intrusions' in counts else 0} intrusion tests "
+        f"({counts.get('intrusions', 0)} samples) at phi {DESIGN.phis[0]:g}. Noise priors: "
         + ", ".join(
             f"{k} {v.dist}[{v.lower:g}, {v.upper:g}] {v.unit}" for k, v in NOISE_PRIORS.items()
         )
