@@ -43,7 +43,7 @@ import pandas as pd
 from granbayes import Prior, default_priors, load_experiment, load_measurements, stats
 from granbayes._fitting import FitSettings
 from granbayes._sampler import SamplerSettings
-from granbayes._sbc import run_sbc
+from granbayes._sbc import log_prob_rank_text, run_sbc
 from granbayes.campaign import ClusterSettings
 from granbayes.report import markdown_table
 from granbayes.testing import LabDesign, synthetic_lab_data, write_lab_experiment
@@ -183,22 +183,15 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _tails_lines(lp: dict, ranks: pd.DataFrame) -> list[str]:
-    """The log-posterior's rank and the ranked draws' spread, as the summary reads them."""
+    """The log-posterior's rank (the summary's sentence) and the ranked draws' spread."""
     if not lp.get("n_runs"):
         return []
-    (row,) = lp["per_phi"]
     spread = ranks.groupby("parameter", sort=False)["spread_ratio"].median()
     return [
         "",
-        f"Log-posterior rank (a test quantity of the whole parameter vector): the truth's "
-        f"log-posterior is in the lowest tenth of the 99 ranked draws' in "
-        f"{lp['n_lowest_tenth']} of {lp['n_runs']} runs (expected "
-        f"{lp['expected_fraction']:.2f}; one-sided exact binomial p = "
-        f"{lp['p_lowest_tenth']:.2g}); mean normalised rank "
-        f"{row['mean_normalised_rank']:.2f}, uniformity p chi-square "
-        f"{row['uniformity']['p_value']:.2g}, pot_c {row['uniformity']['pot_c_p_value']:.2g}. "
-        "Spread of the ranked draws (16-84% range over that of every kept draw; median over "
-        "runs; about 1 if they are as spread as the run's sample): "
+        log_prob_rank_text(lp)
+        + " Spread of the ranked draws (16-84% range over that of every kept draw; median "
+        "over runs; about 1 if they are as spread as the run's sample): "
         + ", ".join(f"{name} {value:.2f}" for name, value in spread.items())
         + ".",
     ]

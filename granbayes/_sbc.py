@@ -68,7 +68,7 @@ __all__ = [
     "SBCResult",
     "draw_measurements",
     "draw_replicate",
-    "rank_draws",
+    "rank_draw_indices",
     "replicate_ranks",
     "run_sbc",
 ]
@@ -366,37 +366,27 @@ def draw_measurements(
     return Measurements(kept, design.unit_columns), truths
 
 
-def rank_draws(part: FitPart, n_rank_draws: int) -> tuple[np.ndarray, bool]:
-    """``n_rank_draws`` roughly independent posterior draws of one ensemble run.
+def rank_draw_indices(run, n_rank_draws: int) -> tuple[np.ndarray, np.ndarray, bool]:
+    """``(chain, draw)`` indices of ``n_rank_draws`` roughly independent draws of one run.
 
     The kept draws (every ``thin`` steps) are thinned further to one per largest
     autocorrelation time ``tau`` of each walker, then ``n_rank_draws`` are taken evenly
-    spaced over all walkers. If fewer than ``n_rank_draws`` remain (a short chain), all
-    kept draws are used instead and ``independent`` is False.
+    spaced over all walkers, step after step. If fewer than ``n_rank_draws`` remain (a
+    short chain), all kept draws are used instead and ``independent`` is False.
 
     Parameters
     ----------
-    part : FitPart
-        One run of a fit.
+    run : SamplerRun
+        One ensemble run of a fit (``FitPart.run``).
     n_rank_draws : int
         Number of draws.
 
     Returns
     -------
-    draws : ndarray, shape (n_rank_draws, ndim)
-        In sampling coordinates.
+    chains, draws : ndarray of int, shape (n_rank_draws,)
+        Index the run's ``samples`` and ``log_prob``.
     independent : bool
         Whether the draws are spaced by at least ``tau``.
-    """
-    chains, draws, independent = _rank_picks(part.run, n_rank_draws)
-    return part.run.samples[chains, draws], independent
-
-
-def _rank_picks(run, n_rank_draws: int) -> tuple[np.ndarray, np.ndarray, bool]:
-    """(chain, draw) indices of :func:`rank_draws`' draws, and whether they are independent.
-
-    The kept draws of every walker at one thinned step, step after step, ``n_rank_draws``
-    evenly spaced over them.
     """
     n_chain, n_draw, _ = run.samples.shape
     tau = float(np.nanmax(run.tau)) if np.any(np.isfinite(run.tau)) else math.nan
@@ -492,7 +482,7 @@ def replicate_ranks(
     result = fit(experiment, table, settings, seed=fit_seed, priors=priors)
     rows = []
     for part, column, phi in _ranked_columns(result.parts):
-        chains, steps, independent = _rank_picks(part.run, n_rank_draws)
+        chains, steps, independent = rank_draw_indices(part.run, n_rank_draws)
         values = part.model.parameter_values(part.run.samples[chains, steps])
         kept = part.model.parameter_values(part.run.samples.reshape(-1, part.model.ndim))
         lp_truth = _log_prob_at(part.model, truths)  # NaN for a quadratic run
@@ -659,6 +649,23 @@ def _log_prob_rank_check(ranks: pd.DataFrame) -> dict[str, Any]:
     }
 
 
+def log_prob_rank_text(lp: Mapping[str, Any]) -> str:
+    """The log-posterior rank check (:func:`_log_prob_rank_check`) in a sentence."""
+    pot = [row["uniformity"]["pot_c_p_value"] for row in lp["per_phi"]]
+    return (
+        f"Log-posterior rank (the whole parameter vector): in {lp['n_lowest_tenth']} of "
+        f"{lp['n_runs']} runs the truth's log-posterior is in the lowest tenth of the "
+        f"ranked draws' (expected {lp['expected_fraction']:.2f}; one-sided exact binomial "
+        f"p = {lp['p_lowest_tenth']:.3g}); mean normalised rank "
+        + ", ".join(f"{row['mean_normalised_rank']:.2f}" for row in lp["per_phi"])
+        + ", uniformity p chi-square "
+        + ", ".join(f"{row['uniformity']['p_value']:.3g}" for row in lp["per_phi"])
+        + ", pot_c "
+        + ", ".join("-" if p is None else f"{p:.3g}" for p in pot)
+        + " (per volume fraction)."
+    )
+
+
 def _summary_markdown(summary: Mapping[str, Any]) -> str:
     lines = [
         f"# Simulation-based calibration of `fit` ({', '.join(summary['terms'])})",
@@ -697,18 +704,7 @@ def _summary_markdown(summary: Mapping[str, Any]) -> str:
         ]
     lp = summary.get("log_prob_rank", {})
     if lp.get("n_runs"):
-        pot = [row["uniformity"]["pot_c_p_value"] for row in lp["per_phi"]]
-        lines += [
-            "",
-            f"Log-posterior rank (the whole parameter vector): in {lp['n_lowest_tenth']} of "
-            f"{lp['n_runs']} runs the truth's log-posterior is in the lowest tenth of the "
-            f"ranked draws' (expected {lp['expected_fraction']:.2f}; one-sided exact binomial "
-            f"p = {lp['p_lowest_tenth']:.3g}); uniformity p chi-square "
-            + ", ".join(f"{row['uniformity']['p_value']:.3g}" for row in lp["per_phi"])
-            + ", pot_c "
-            + ", ".join("-" if p is None else f"{p:.3g}" for p in pot)
-            + " (per volume fraction).",
-        ]
+        lines += ["", log_prob_rank_text(lp)]
     lines += [
         "",
         f"Compute: {t['task_s_total']:.0f} s of replicate time (median {t['task_s_median']:.1f} "
