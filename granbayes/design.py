@@ -305,6 +305,10 @@ class _Hypothesis:
         for state, (r, logw) in zip(self.states, changes, strict=True):
             state.commit(r, logw)
 
+    def fit_changes(self) -> tuple[float, float]:
+        """Truth's and rival's change of fit of the measured jumps under the plan [nats]."""
+        return self.states[0].current()[2], self.states[1].current()[2]
+
 
 def plan_jumps(
     draws: Mapping[str, LawDraws],
@@ -345,7 +349,12 @@ def plan_jumps(
         (the smallest effective sample size of a reweighted posterior, as a share of the
         draws: small values mean the plan asks more than the draws can represent) and
         ``refuted_now`` (the data so far already reject the hypothesis by the rule: its
-        rival beats its truth; it is not designed for).
+        rival beats its truth; it is not designed for), ``fit_change_truth`` and
+        ``fit_change_rival`` [nats] (each law's change of in-sample log predictive
+        density of the jumps measured so far once the plan reweights its draws: part of
+        ``elpd_diff_expected``, whose rest is the planned jumps' own separation; a rival
+        pulled towards the truth's predictions at the new settings can lose fit of the
+        old jumps).
     settled : bool
         Whether every hypothesis not refuted passes the rule in expectation.
     first_jump : float
@@ -398,6 +407,8 @@ def plan_jumps(
             "elpd_diff_expected": [d for d, _, _ in state],
             "se_expected": [math.sqrt(v) for _, v, _ in state],
             "ess_share": [e for _, _, e in state],
+            "fit_change_truth": [h.fit_changes()[0] for h in hyps],
+            "fit_change_rival": [h.fit_changes()[1] for h in hyps],
             "refuted_now": refuted,
         }
     )
