@@ -300,21 +300,46 @@ class SnookerMove(emcee.moves.DESnookerMove):
     (its latest release; ``requirements.lock``) divides ``x - z`` by the square root of
     its length instead of its length, so the step grows with the walker's distance from
     ``z``, and takes half the factor: the chain's stationary distribution is not the
-    target. Measured with emcee's own sampler on a standard normal (4,000 steps): the
-    snooker move alone gave a standard deviation of 0.80 in 8 dimensions (64 walkers);
-    granbayes's mixture (80% differential evolution; 32-52 walkers) 0.98 in 3
+    target. Measured with emcee's own sampler on a standard normal (4,000 steps;
+    ``benchmarks/snooker_move.py``): the snooker move alone gave a standard deviation of
+    0.80 in 8 dimensions; granbayes's mixture (80% differential evolution) 0.98 in 3
     dimensions, 0.95 in 8, 0.92 in 13, so every posterior was too narrow by that much and
     its 90% intervals held 89%, 88% and 87% of the target's mass. emcee fixed it after the release
     (dfm/emcee pull request 531, commit 946e664, 2025-01-27); this is that fix. It draws
     the same random numbers as emcee's move. Once a release of emcee carries the fix,
     ``emcee.moves.DESnookerMove`` replaces this class (``tests/test_sampler.py`` checks
     both on a standard normal).
+
+    Parameters
+    ----------
+    gammas : float
+        Mean stretch of the step along the line (1.7, as the reference recommends).
+    **kwargs
+        emcee's ``RedBlueMove`` options (the ensemble is split in four).
     """
 
     def get_proposal(
         self, s: np.ndarray, c: Sequence[np.ndarray], random: np.random.RandomState
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Proposals for the walkers ``s`` from the complementary sets ``c`` (emcee's API)."""
+        """Proposals for the walkers ``s`` from the complementary sets ``c`` (emcee's API).
+
+        Parameters
+        ----------
+        s : ndarray, shape (n, ndim)
+            The walkers that move.
+        c : sequence of ndarray
+            The three other quarters of the ensemble (the line's anchor and the two
+            walkers whose difference sets the step are drawn one from each).
+        random : numpy.random.RandomState
+            The ensemble's random state.
+
+        Returns
+        -------
+        q : ndarray, shape (n, ndim)
+            The proposals.
+        log_factor : ndarray, shape (n,)
+            ``(ndim - 1) log(|q - z| / |s - z|)``, added to the log acceptance ratio.
+        """
         ndim = s.shape[1]
         counts = [len(part) for part in c]
         q = np.empty_like(s)
