@@ -398,6 +398,7 @@ def plan_jumps(
             h.commit(changes)
         state = [ev for ev, _ in best_state]
         settled = best_score > 1.0
+    fit_changes = [h.fit_changes() for h in hyps]
     table = pd.DataFrame(
         {
             "truth": [t for t, _ in pairs],
@@ -407,8 +408,8 @@ def plan_jumps(
             "elpd_diff_expected": [d for d, _, _ in state],
             "se_expected": [math.sqrt(v) for _, v, _ in state],
             "ess_share": [e for _, _, e in state],
-            "fit_change_truth": [h.fit_changes()[0] for h in hyps],
-            "fit_change_rival": [h.fit_changes()[1] for h in hyps],
+            "fit_change_truth": [truth for truth, _ in fit_changes],
+            "fit_change_rival": [rival for _, rival in fit_changes],
             "refuted_now": refuted,
         }
     )
