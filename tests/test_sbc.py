@@ -503,7 +503,8 @@ def test_the_force_noise_likelihood_is_the_gaussian_of_the_oracles_residuals(
     """At a replicate's truth, the joint log-posterior moves with the force noise exactly as
     a Gaussian log-likelihood of the oracle's own force residuals written by hand: the
     intrusion curves are counted once, with the oracle's noise model (the SBC of the joint
-    fit finds the force noise's ranks uneven; this is not why)."""
+    fit found the force noise's ranks uneven: emcee 3.1.6's snooker update was why, not
+    this; ``granbayes._sampler.SnookerMove``)."""
     import granbayes.testing
 
     tables = {}
