@@ -975,8 +975,11 @@ def test_drag_and_viscous_compared_paired_and_ties_reported(tmp_path: Path) -> N
     chosen = d.added[0]
     round1 = [c for c in d.candidates if c.round == 1]
     (other,) = [c for c in round1 if c.term != chosen]
+    (mine,) = [c for c in round1 if c.term == chosen]
     loo = {t: gstats.loo(d.fits[("depth", t)].datatree)["elpd_i"] for t in ("drag", "viscous")}
-    if "psis-loo" == other.method:
+    # plain PSIS-LOO of both saved fits is what the diagnosis used only where neither law
+    # needed moment matching or refits (on some machines the chosen one does)
+    if mine.method == other.method == "psis-loo":
         diff, se = gstats.elpd_difference(loo[chosen], loo[other.term])
         assert (other.vs_selected, other.vs_selected_se) == pytest.approx((diff, se))
     assert other.vs_selected >= 0.0 or not other.converged  # the chosen one scores best
