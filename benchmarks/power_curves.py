@@ -27,12 +27,13 @@ Usage::
 
     python benchmarks/power_curves.py [--kinds drag,viscous,...] [--per-size 10]
         [--tracked] [--nulls N] [--out DIR] [--seed S] [--workers N | --scheduler ADDRESS]
-        [--resume] [--summarize-only]
+        [--resume] [--summarize-only] [--against EARLIER/results.csv]
 
 With ``--nulls N`` the study is instead N cases without any effect on the same designs
 (``power_case('null', 0.0, ...)``; with ``--tracked`` filmed as above): the false-alarm
 arm, whose right verdict is ``baseline_adequate``; default OUT
-``benchmarks/results/power_null`` (``power_tracked_null``).
+``benchmarks/results/power_null`` (``power_tracked_null``). With ``--against`` the summary
+compares the run case by case with an earlier one on the same seed (a rerun on other code).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from functools import partial
 from pathlib import Path
 
 import matplotlib
@@ -271,19 +273,24 @@ def _within_range(sizes: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def paired_with_heights(tracked: pd.DataFrame, heights: pd.DataFrame) -> pd.DataFrame:
-    """The tracked study's cases beside the same cases fitted to their heights alone.
+def paired_runs(
+    results: pd.DataFrame, other: pd.DataFrame, names: tuple[str, str] = ("tracked", "heights")
+) -> pd.DataFrame:
+    """Each case of one run of the study beside the same case in another.
 
-    The two studies draw each case from the same seed (the task id) and the tracked
-    one adds frames from a stream of their own, so the heights are the same. Per kind
-    and size: the pairs both studies finished, how many each detected, and the discordant
-    pairs (detected with the frames only, with the heights only); per kind over its
+    Two runs with the same seed draw each case alike (the seed is spawned per task id):
+    the tracked study against the heights-only one (the tracked one adds frames from a
+    stream of their own, so the heights are the same), or a rerun on other code against
+    an earlier run. Per kind and size: the pairs both runs finished, how many each
+    detected, and the discordant pairs (detected in one run only); per kind over its
     sizes, the exact two-sided McNemar test (binomial on the discordant pairs).
 
     Parameters
     ----------
-    tracked, heights : pandas.DataFrame
-        ``results.csv`` of the tracked study and of the heights-only one.
+    results, other : pandas.DataFrame
+        ``results.csv`` of the two runs.
+    names : tuple of str
+        What to call them in the columns (``detected_<name>``, ``only_<name>``).
 
     Returns
     -------
@@ -297,39 +304,47 @@ def paired_with_heights(tracked: pd.DataFrame, heights: pd.DataFrame) -> pd.Data
     """
     from scipy.stats import binomtest
 
-    both = tracked.assign(hit=detected(tracked)).merge(
-        heights.assign(hit=detected(heights)),
-        on="task_id",
-        suffixes=("_tracked", "_heights"),
+    a, b = names
+    both = results.assign(hit=detected(results)).merge(
+        other.assign(hit=detected(other)), on="task_id", suffixes=(f"_{a}", f"_{b}")
     )
-    if not np.array_equal(both["sigma_mm_tracked"], both["sigma_mm_heights"]):
-        raise ValueError("a tracked case and its heights-only case differ: not the same draw")
-    both["only_tracked"] = both["hit_tracked"] & ~both["hit_heights"]
-    both["only_heights"] = both["hit_heights"] & ~both["hit_tracked"]
+    if not np.array_equal(both[f"sigma_mm_{a}"], both[f"sigma_mm_{b}"]):
+        raise ValueError("a case and its twin in the other run differ: not the same draw")
+    both[f"only_{a}"] = both[f"hit_{a}"] & ~both[f"hit_{b}"]
+    both[f"only_{b}"] = both[f"hit_{b}"] & ~both[f"hit_{a}"]
     rows = []
-    for kind, g in both.groupby("kind_tracked", sort=False):
-        for size, c in [*g.groupby("size_tracked", sort=True), (math.nan, g)]:
+    for kind, g in both.groupby(f"kind_{a}", sort=False):
+        for size, c in [*g.groupby(f"size_{a}", sort=True), (math.nan, g)]:
             row = {
                 "kind": kind,
                 "size": size,
                 "pairs": len(c),
-                "detected_heights": int(c["hit_heights"].sum()),
-                "detected_tracked": int(c["hit_tracked"].sum()),
-                "only_tracked": int(c["only_tracked"].sum()),
-                "only_heights": int(c["only_heights"].sum()),
+                f"detected_{b}": int(c[f"hit_{b}"].sum()),
+                f"detected_{a}": int(c[f"hit_{a}"].sum()),
+                f"only_{a}": int(c[f"only_{a}"].sum()),
+                f"only_{b}": int(c[f"only_{b}"].sum()),
                 "mcnemar_p": math.nan,
             }
-            discordant = row["only_tracked"] + row["only_heights"]
+            discordant = row[f"only_{a}"] + row[f"only_{b}"]
             if math.isnan(size) and discordant:
-                row["mcnemar_p"] = binomtest(row["only_tracked"], discordant).pvalue
+                row["mcnemar_p"] = binomtest(row[f"only_{a}"], discordant).pvalue
             rows.append(row)
     return pd.DataFrame(rows)
 
 
 def write_summary(
-    out: Path, results: pd.DataFrame, seed: int, n_planned: int, tracked: bool = False
+    out: Path,
+    results: pd.DataFrame,
+    seed: int,
+    n_planned: int,
+    tracked: bool = False,
+    against: Path | None = None,
 ) -> None:
-    """summary.md, summary.json and power.png from the tidy results."""
+    """summary.md, summary.json and power.png from the tidy results.
+
+    ``against``: the ``results.csv`` of an earlier run with the same seed, compared case
+    by case (:func:`paired_runs`).
+    """
     table = power_table(results)
     by_snr = detection_sizes(results, "effect_snr")
     by_size = detection_sizes(results, "size")
@@ -397,7 +412,7 @@ def write_summary(
     ]
     heights_csv = HERE / "results" / "power" / "results.csv"
     if tracked and heights_csv.exists():
-        paired = paired_with_heights(results, pd.read_csv(heights_csv))
+        paired = paired_runs(results, pd.read_csv(heights_csv))
         doc["paired_with_heights"] = paired.to_dict("records")
         (out / "summary.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
         lines += [
@@ -410,6 +425,21 @@ def write_summary(
             "on them.",
             "",
             markdown_table(paired, ".3g", missing=""),
+        ]
+    if against is not None:
+        changes = paired_runs(results, pd.read_csv(against), ("after", "before"))
+        doc["against"] = str(against)
+        doc["paired_with_earlier"] = changes.to_dict("records")
+        (out / "summary.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
+        lines += [
+            "",
+            f"## Against an earlier run of the study (`{against}`)",
+            "",
+            "The same cases (the same seed: the same drawn truths, designs and noise) in "
+            "both runs, each case beside itself: detected before and after, the discordant "
+            "pairs, and per kind (`size` empty) the exact two-sided McNemar test on them.",
+            "",
+            markdown_table(changes, ".3g", missing=""),
         ]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     note = "; ".join(
@@ -439,6 +469,12 @@ def main(argv: list[str] | None = None) -> int:
         metavar="N",
         help="instead: N cases without an effect (the false-alarm arm)",
     )
+    parser.add_argument(
+        "--against",
+        type=Path,
+        metavar="CSV",
+        help="results.csv of an earlier run with the same seed: compare case by case",
+    )
     args = parser.parse_args(argv)
     if args.out == HERE / "results" / "power":
         args.out = (
@@ -454,7 +490,7 @@ def main(argv: list[str] | None = None) -> int:
         summary = write_null_summary
     else:
         todo = tasks(kinds, args.per_size, args.seed, args.tracked)
-        summary = write_summary
+        summary = partial(write_summary, against=args.against)
     if args.summarize_only:
         return summarize_finished(
             args.out,

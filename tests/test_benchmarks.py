@@ -83,7 +83,7 @@ def test_the_tracked_power_study_pairs_each_case_with_its_heights_only_twin(
     tracked.loc[gained, ["verdict", "added"]] = ["extended", "drag"]
     lost = int(next(i for i in range(len(was)) if was[i] and not big[i]))
     tracked.loc[lost, ["verdict", "added"]] = ["baseline_adequate", ""]
-    paired = power.paired_with_heights(tracked, heights)
+    paired = power.paired_runs(tracked, heights)
     total = paired[paired["size"].isna()].iloc[0]
     assert total["pairs"] == len(heights)
     assert total["detected_heights"] == was.sum()
@@ -97,7 +97,7 @@ def test_the_tracked_power_study_pairs_each_case_with_its_heights_only_twin(
     assert per_size["mcnemar_p"].isna().all()
     tracked.loc[0, "sigma_mm"] += 0.1
     with pytest.raises(ValueError, match="not the same draw"):
-        power.paired_with_heights(tracked, heights)
+        power.paired_runs(tracked, heights)
 
 
 def test_the_null_arm_of_the_power_study(benchmarks_on_path, tmp_path) -> None:
@@ -127,3 +127,32 @@ def test_the_null_arm_of_the_power_study(benchmarks_on_path, tmp_path) -> None:
     assert doc["false_discovery"]["hi"] == pytest.approx(0.80588, abs=1e-5)
     text = (tmp_path / "summary.md").read_text()
     assert "a stopped study: 4 of 10" in text and "1 of 4" in text
+
+
+def test_a_rerun_of_the_power_study_is_compared_case_by_case(
+    benchmarks_on_path, tmp_path
+) -> None:
+    """``--against``: the summary pairs each case with its twin of an earlier run (the
+    committed study's drag rows, two of them turned), with the discordant pairs per kind."""
+    import json
+
+    import pandas as pd
+
+    power = importlib.import_module("power_curves")
+    earlier = pd.read_csv(BENCHMARKS / "results" / "power" / "results.csv")
+    earlier = earlier[earlier["kind"] == "drag"].reset_index(drop=True)
+    was = power.detected(earlier).to_numpy()
+    rerun = earlier.copy()
+    found, missed = int(was.argmax()), int((~was).argmax())
+    rerun.loc[found, ["verdict", "added"]] = ["baseline_adequate", ""]
+    rerun.loc[missed, ["verdict", "added"]] = ["extended", "drag"]
+    csv = tmp_path / "earlier.csv"
+    earlier.to_csv(csv, index=False)
+    power.write_summary(tmp_path, rerun, 5, len(rerun), against=csv)
+    doc = json.loads((tmp_path / "summary.json").read_text())
+    total = next(r for r in doc["paired_with_earlier"] if math.isnan(r["size"]))
+    assert total["pairs"] == len(earlier)
+    assert total["detected_before"] == total["detected_after"] == was.sum()
+    assert total["only_after"] == total["only_before"] == 1
+    assert total["mcnemar_p"] == pytest.approx(1.0)
+    assert "Against an earlier run of the study" in (tmp_path / "summary.md").read_text()
