@@ -129,9 +129,7 @@ def test_the_null_arm_of_the_power_study(benchmarks_on_path, tmp_path) -> None:
     assert "a stopped study: 4 of 10" in text and "1 of 4" in text
 
 
-def test_a_rerun_of_the_power_study_is_compared_case_by_case(
-    benchmarks_on_path, tmp_path
-) -> None:
+def test_a_rerun_of_the_power_study_is_compared_case_by_case(benchmarks_on_path, tmp_path) -> None:
     """``--against``: the summary pairs each case with its twin of an earlier run (the
     committed study's drag rows, two of them turned), with the discordant pairs per kind."""
     import json
