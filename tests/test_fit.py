@@ -641,6 +641,34 @@ def test_a_start_point_is_one_more_climb_of_the_first_ensemble(
     assert gfit._start_point(model, {PHI_C: {**point, "k": 1e12}}) is None
 
 
+def test_the_climbs_run_with_one_blas_thread(
+    one_phi: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The Laplace starts climb with one BLAS thread (L-BFGS-B's LAPACK calls on a few
+    rows, where OpenBLAS's threads only cost), whatever the caller set, and the caller's
+    setting is back after the fit."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads() -> set[int]:
+        return {p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"}
+
+    seen: list[set[int]] = []
+    original = gfit._evolve
+
+    def spy(*args, **kwargs):
+        seen.append(blas_threads())
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(gfit, "_evolve", spy)
+    experiment, table = load_folder(one_phi)
+    config = FitSettings(terms=("depth",), sampler=TINY, n_threads=1, n_prior_draws=0)
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert blas_threads() == {2}
+        fit(experiment, table, config, seed=5)
+        assert blas_threads() == {2}
+    assert seen and all(s == {1} for s in seen)
+
+
 # ----------------------------------------------------------------------------------------
 # Determinism, progress, resume and compare_commands on the capped two-phi fit
 # ----------------------------------------------------------------------------------------
