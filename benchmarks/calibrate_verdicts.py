@@ -68,7 +68,10 @@ from granbayes.campaign import Task, spawn_seeds
 from granbayes.report import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
-SEED = 20261123
+#: The seed of the study in ``docs/verdicts`` (its cases), so that the command without
+#: ``--seed`` reruns it. The rule's thresholds were chosen on the cases of 20261123 (the
+#: studies of 80ecd1b and 160a653): a study on that seed measures the rule where it was tuned.
+SEED = 20261130
 #: The kinds of the study by default: null, the library terms and the out-of-library
 #: effects that are forces of the oracle. The two that rescale k per cell
 #: (``pause_stiffening``, ``rate_stiffening``; each cell alone a depth-only law) stay
