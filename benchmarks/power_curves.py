@@ -363,7 +363,6 @@ def write_summary(
         "detection_by_size": by_size.to_dict("records"),
         "median_time_per_case_s": float(results["wall_time_s"].median()),
     }
-    (out / "summary.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
     lines = [
         "# Where diagnose stops seeing: detection against effect size (SYNTHETIC data)",
         "",
@@ -414,7 +413,6 @@ def write_summary(
     if tracked and heights_csv.exists():
         paired = paired_runs(results, pd.read_csv(heights_csv))
         doc["paired_with_heights"] = paired.to_dict("records")
-        (out / "summary.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
         lines += [
             "",
             "## The same cases fitted to their heights alone",
@@ -430,7 +428,6 @@ def write_summary(
         changes = paired_runs(results, pd.read_csv(against), ("after", "before"))
         doc["against"] = str(against)
         doc["paired_with_earlier"] = changes.to_dict("records")
-        (out / "summary.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
         lines += [
             "",
             f"## Against an earlier run of the study (`{against}`)",
@@ -441,6 +438,7 @@ def write_summary(
             "",
             markdown_table(changes, ".3g", missing=""),
         ]
+    (out / "summary.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     note = "; ".join(
         (

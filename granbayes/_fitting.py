@@ -554,8 +554,9 @@ _POLISH: tuple[str, ...] = ("powell", "lbfgs")
 #: matrices of a few rows (SciPy's ``setulb``), where OpenBLAS's own threads only cost: on a
 #: 2-core machine running other work, 2-9 ms per iteration with its 2 threads against 50 us
 #: with one, and the climbs of the extended reference set's joint fit spent 22 s between
-#: their simulator calls instead of 8 s (the whole fit 95 s against 69 s; every posterior
-#: and start the same to the last bit). Dask's workers already run with one
+#: their simulator calls instead of 2 s (the whole fit 95 s against 60 s; every posterior
+#: and start the same to the last bit). On an idle machine the second thread only burns
+#: CPU (the joint fit 0.92x CPU, 1.02x wall). Dask's workers already run with one
 #: (``OPENBLAS_NUM_THREADS=1`` from its nanny), so a study's fits and the command line's
 #: now do the same arithmetic the same way.
 _CLIMB_BLAS_THREADS = 1
